@@ -144,3 +144,53 @@ def test_a_backup_read_from_a_terminal_says_it_waits_for_one(tmp_path: Path) -> 
     said = " ".join(" ".join(screen_of(shown)).split())
     assert "reading the backup from standard input: paste it, then Ctrl-D" in said, said
     assert code == ExitCode.USAGE and "not JSON" in said, said
+
+
+# ------------------------------------------------------------------- a directory given where a file goes
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a pseudo-terminal stands for the serial port")
+def test_sniff_output_ending_in_a_slash_is_refused_not_written_as_a_file(cli: Any, tmp_path: Path) -> None:
+    # `ics35 sniff -o heard/` wrote the decoded lines into a file named "heard": sniff names no file of its own.
+    master, slave = os.openpty()
+    try:
+        result = cli("--port", os.ttyname(slave), "sniff", "-o", f"{tmp_path}/heard/", "--duration", "0.1")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert f"--output {tmp_path}/heard/: names a directory; give a file name (nothing was sent)" in said, said
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_one_servo_dumped_into_a_directory_gets_the_file_name_a_dump_of_several_gives(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    _, url = sim_line([1])
+    (tmp_path / "there").mkdir()
+    for given in (f"{tmp_path}/there", f"{tmp_path}/there/", f"{tmp_path}/new/"):
+        result = cli("--port", url, "eeprom", "dump", "1", "-o", given)
+        assert result.code == 0, result.err
+        written = Path(given.rstrip("/")) / "servo-01.json"
+        assert f"EEPROM of servo 1 saved to {written}" in result.err and written.is_file(), result.err
+
+
+@pytest.mark.parametrize("ids", ["1", "1-2"])
+def test_a_dump_into_a_directory_whose_parent_is_missing_is_refused_before_reading(
+    cli: Any, sim_line: Any, tmp_path: Path, ids: str
+) -> None:
+    # `-o bakcup/2024/` (a typo) made the whole chain of directories, and the backup went where nobody looks.
+    sim, url = sim_line([1, 2])
+    given = f"{tmp_path}/bakcup/2024/"
+    result = cli("--port", url, "eeprom", "dump", ids, "-o", given)
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert f"--output {given}: the directory {tmp_path}/bakcup does not exist (nothing was sent)" in said, said
+    assert sim.transactions == 0 and list(tmp_path.iterdir()) == []
+
+
+def test_a_plot_path_ending_in_a_slash_is_named_a_directory(tmp_path: Path) -> None:
+    with pytest.raises(CliError) as caught:
+        check_output_path(f"{tmp_path}/plots/", "--plot", {"png"})
+    assert "names a directory; give a file name" in caught.value.message, caught.value.message

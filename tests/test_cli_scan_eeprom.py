@@ -375,7 +375,7 @@ def test_several_servos_dumped_to_one_file_are_restored_from_it(cli: Any, sim_li
 def test_dump_checks_its_output_before_reading(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url = sim_line([1])
     result = cli("--port", url, "eeprom", "dump", "1", "-o", str(tmp_path / "missing" / "x.json"))
-    assert result.code == ExitCode.USAGE and "no directory" in result.err
+    assert result.code == ExitCode.USAGE and f"the directory {tmp_path / 'missing'} does not exist" in result.err
     assert sim.transactions == 0
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,7 +57,7 @@ from ._common import (
 from ._console import SIMULATED_KEY
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
-from ._paths import check_backup_path
+from ._paths import check_backup_path, check_output_dir, check_output_path, names_directory
 from ._runner import line_error
 
 # --------------------------------------------------------------------------- dump
@@ -66,7 +65,8 @@ from ._runner import line_error
 
 def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[str, Path | None]:
     """Where the dump goes ("stdout", "file", "dir" or "several": one file of several servos' backups), checked
-    before the line is touched."""
+    before the line is touched: for "dir", the directory (each servo's file in it named as
+    :func:`backup_file_name` names it, one servo's too), else the file."""
     if output is None:
         if len(ids) > 1 and not as_table:
             raise click.BadParameter(
@@ -76,25 +76,16 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
         return "stdout", None
     if empty_path(output):
         raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
+    if names_directory(output):
+        return "dir", check_output_dir(output, "--output")
     path = Path(output)
-    is_dir = output.endswith(("/", os.sep)) or path.is_dir()
-    if not is_dir and len(ids) > 1 and path.suffix.lower() != ".json" and not path.is_file():
+    if len(ids) > 1 and path.suffix.lower() != ".json" and not path.is_file():
         # A name that is neither a JSON file's nor a folder's yet: which of the two is meant cannot be told.
-        name = output.rstrip("/" + os.sep)
         raise click.BadParameter(
-            f"several servos: -o {name}/ (one file per servo) or -o {name}.json (one file of them all)",
+            f"several servos: -o {output}/ (one file per servo) or -o {output}.json (one file of them all)",
             param_hint="--output",
         )
-    # The directory that must exist and take a new file: a file's own; for DIR/ (created when
-    # written) the nearest one that exists.
-    existing = path if is_dir else path.parent
-    while is_dir and not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise click.BadParameter(f"cannot write {output}: there is no directory {existing}", param_hint="--output")
-    if not os.access(existing, os.W_OK) or (path.is_file() and not os.access(path, os.W_OK)):
-        raise click.BadParameter(f"cannot write {output}: permission denied", param_hint="--output")
-    return ("dir" if is_dir else "file" if len(ids) == 1 else "several"), path
+    return ("file" if len(ids) == 1 else "several"), check_output_path(output, "--output")
 
 
 def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
@@ -148,7 +139,7 @@ def write_backup(path: Path, doc: dict[str, Any]) -> Path | None:
     """Write the backup whole; an earlier file there is kept as ``NAME.bak`` (returned), never overwritten: it
     may be the one the user restores to."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path.parent.mkdir(exist_ok=True)  # (-o DIR/: its parent is there, see check_output_dir)
         return replace_keeping_backup(path, json.dumps(doc, indent=2) + "\n")
     except OSError as exc:
         raise CliError(ExitCode.USAGE, f"cannot write {path}: {exc.strerror or exc}") from None

@@ -38,15 +38,51 @@ def _refuse_empty(path: str, what: str) -> None:
         raise CliError(ExitCode.USAGE, _empty_path_said(what))
 
 
-def check_output_path(path: str, what: str, formats: Collection[str] | None = None) -> Path:
-    """``path`` if a file can be written there (and, given ``formats``, its suffix is one of them).
+def names_directory(path: str) -> bool:
+    """Whether ``path``, given where output goes, names a directory: one that is there, or a path ending in a
+    separator (``backup/``, a directory to make)."""
+    return path.endswith(("/", os.sep)) or Path(path).is_dir()
+
+
+def check_output_dir(path: str, what: str) -> Path:
+    """``path`` (a directory: :func:`names_directory`) if files can be made in it: it is there, or its parent is
+    (it is made when the files are written).  A missing parent is refused, not made: ``bakcup/2024/`` is a typo
+    far more often than a tree to grow, and the files would go where nobody looks.  A :class:`CliError` (exit
+    code 2) naming ``what`` otherwise."""
+    _refuse_empty(path, what)
+    directory = Path(path)
+    existing = directory if directory.exists() else directory.parent
+    if not existing.exists():
+        raise _refuse(what, path, f"the directory {existing} does not exist")
+    if not existing.is_dir():
+        raise _refuse(what, path, f"{existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise _refuse(what, path, f"cannot create files in {existing}")
+    return directory
+
+
+def check_output_path(
+    path: str, what: str, formats: Collection[str] | None = None, *, default_name: str | None = None
+) -> Path:
+    """The file to write for ``path`` if one can be written there (and, given ``formats``, its suffix is one of
+    them).  ``path`` naming a directory (:func:`names_directory`): the file ``default_name`` in it, the name the
+    command gives a file of its own (its parent must be there: see :func:`check_output_dir`); a command with no
+    name of its own refuses it (it wrote a file named like the directory, ``heard/`` into ``heard``).
 
     Raises a :class:`CliError` (exit code 2) naming ``what`` (e.g. ``--plot``) otherwise.
     """
     _refuse_empty(path, what)
-    target = Path(path)
+    if names_directory(path):
+        if default_name is None:
+            why = "is a directory" if Path(path).is_dir() else "names a directory"
+            raise _refuse(what, path, f"{why}; give a file name")
+        target = check_output_dir(path, what) / default_name
+        if not target.parent.exists():
+            return target  # (in a directory made as it is written)
+    else:
+        target = Path(path)
     if target.is_dir():
-        raise _refuse(what, path, "is a directory; give a file name")
+        raise _refuse(what, path, "is a directory" if default_name is None else f"{target} is a directory")
     parent = target.parent
     if not parent.exists():
         raise _refuse(what, path, f"the directory {parent} does not exist")
