@@ -498,9 +498,60 @@ def fail(error: CliError) -> NoReturn:
 
 def say_error(error: CliError) -> None:
     """``error`` and its hints on stderr, as a command that ends with it says them (one that goes on may too)."""
-    err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
+    say_labelled("[bold red]error:[/bold red]", escape(error.message))
     for hint in error.hints:
-        err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
+        say_labelled("  [cyan]hint:[/cyan]", escape(hint))
+
+
+# The fewest columns a labelled line's text is wrapped to beside its label: on a terminal narrower still, its
+# further lines start at the left edge (a column of a word or two a line, under an indent, reads worse).
+NARROWEST_TEXT = 16
+
+
+def say_labelled(label: str, text: str) -> None:
+    """``label`` (``error:``, ``  hint:``) and ``text`` after it (both rich markup), on stderr.  On a terminal, wrapped
+    at words to its width, each further line indented under the text: the consoles soft-wrap (see ``out``), so the
+    terminal cut a long line at its last column, mid-word (``chec`` / ``k the cable``), and its further lines began
+    under the label.  Into a log (a pipe, a file, CI), one line however long, as a table goes into one whole (see
+    :func:`printed_table`): read later in a wider window, and found whole by grep."""
+    head, body = Text.from_markup(label), Text.from_markup(text)
+    if not err.is_terminal:
+        err.print(Text.assemble(head, " ", body), soft_wrap=True)
+        return
+    width, indent = err.width, head.cell_len + 1
+    if width - indent < NARROWEST_TEXT:
+        lines = words_wrapped(Text.assemble(head, " ", body), width)
+    else:
+        lines = [
+            Text.assemble(head if k == 0 else " " * head.cell_len, " ", line)
+            for k, line in enumerate(words_wrapped(body, width - indent))
+        ]
+    err.print(Text("\n").join(lines), soft_wrap=True)
+
+
+def words_wrapped(text: Text, width: int) -> list[Text]:
+    """``text`` in lines of at most ``width`` cells, broken between words (a word wider than that is broken where
+    it must: a path, a URL), without the spaces at their ends."""
+    lines = list(text.wrap(err, max(width, 1), overflow="fold"))
+    for line in lines:
+        line.rstrip()
+    return lines or [Text()]
+
+
+def question_text(question: str, answers: str) -> str:
+    """``question`` and its ``answers`` (``[y/N]:``) as written to stderr, the answer to be typed after them.  On a
+    terminal, the question wrapped at words to its width (the terminal cut it mid-word), ``answers`` on its last
+    line with the question's last word at least (alone on a line, it read as a question of its own); into a log, one
+    line (see :func:`say_labelled`)."""
+    asked = f" {answers} "
+    if not err.is_terminal:
+        return question + asked
+    width = err.width
+    lines = [line.plain for line in words_wrapped(Text(question), width)]
+    if cell_len(lines[-1]) + cell_len(asked) > width and " " in lines[-1]:
+        head, word = lines[-1].rsplit(" ", 1)
+        lines[-1:] = [head, word]
+    return "\n".join(lines) + asked
 
 
 def signed_tenths(value: float) -> str:

@@ -12,6 +12,7 @@ import threading
 from collections.abc import Iterator
 
 from . import _signals
+from ._console import question_text
 from ._settings import CliError, ExitCode
 
 
@@ -55,7 +56,7 @@ def ask_yes_no(question: str, nothing: str = "nothing was written") -> bool:
 
 def _ask(question: str) -> bool:
     while True:
-        sys.stderr.write(f"{question} [y/N]: ")
+        sys.stderr.write(question_text(question, "[y/N]:"))
         sys.stderr.flush()
         line = _read_line()
         if not line:

@@ -1,0 +1,81 @@
+"""The command line's words on a narrow terminal: ``error:`` and ``hint:`` lines and the [y/N] questions wrap at
+words, each further line under the text; into a pipe they stay one line each, as a log keeps them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from ics35_async.cli import ExitCode
+from ics35_async.cli._errors import NO_REPLY_HINTS
+from tests.support.terminal import screen_of, typed_on_a_terminal
+
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a pseudo-terminal"),
+]
+
+# A servo that does not answer on a line of none: an error with three long hints.
+SILENT = ["--port", "sim://?ids=none", "get", "1", "speed"]
+SILENT_SAYS = "servo 1 did not answer on sim://?ids=none at 115200 baud, nor at 625000 or 1250000 baud"
+
+
+def said(screen: list[str], label: str) -> list[str]:
+    """Each ``label`` line's words (``error:``, ``hint:``) with its further lines (those indented under its text),
+    checked to be laid out so: every further line starts where the text after the label does, and none is wider
+    than the terminal."""
+    found: list[str] = []
+    indent = None
+    for line in screen:
+        if line.lstrip().startswith(label):
+            indent = line.index(label) + len(label) + 1
+            found.append(line[indent:])
+        elif indent is not None and line.startswith(" " * indent) and line[indent] != " ":
+            found[-1] += " " + line[indent:]
+        else:
+            indent = None
+    return found
+
+
+@pytest.mark.parametrize("columns", [40, 50, 80])
+def test_an_error_and_its_hints_wrap_at_words_under_their_text(columns: int) -> None:
+    # At 45 columns: "error: servo 1 did not answer on sim://?ids=n" / "one at 115200 baud, ..." and
+    # "  hint: check the wiring and the servo ID (ic" / "s35 scan tries ...": words cut, lines at the left edge.
+    code, written = typed_on_a_terminal(SILENT, [], columns=columns)
+    screen = screen_of(written, width=columns)
+    assert code == ExitCode.NO_REPLY, screen
+    assert all(len(line) <= columns for line in screen), screen
+    assert said(screen, "error:") == [SILENT_SAYS], screen
+    assert said(screen, "hint:") == list(NO_REPLY_HINTS), screen
+
+
+def test_into_a_pipe_an_error_and_each_hint_stay_one_line() -> None:
+    # A log is read later, in a wider window, and grep finds a line whole: as the tables into a log, not fitted.
+    done = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", *SILENT],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "40"},
+    )
+    assert done.returncode == ExitCode.NO_REPLY, done.stderr
+    lines = done.stderr.splitlines()
+    assert f"error: {SILENT_SAYS}" in lines and all(f"  hint: {hint}" in lines for hint in NO_REPLY_HINTS), lines
+
+
+@pytest.mark.parametrize("columns", [30, 45])
+def test_a_question_wraps_at_words_and_keeps_its_y_n_on_its_last_line(columns: int) -> None:
+    # At 32 columns: "Write these 1 change(s) to the E" / "EPROM of servo 1? [y/N]: n".
+    args = ["--port", "sim://?ids=1", "eeprom", "set", "1", "speed=100"]
+    code, written = typed_on_a_terminal(args, [("[y/N]", b"n\r")], columns=columns)
+    screen = screen_of(written, width=columns)
+    assert code == ExitCode.REFUSED, screen
+    last = next(k for k, line in enumerate(screen) if "[y/N]" in line)
+    first = next(k for k, line in enumerate(screen) if line.startswith("Write"))
+    asked = " ".join(screen[first : last + 1])
+    assert asked.startswith("Write") and asked.endswith("EEPROM of servo 1? [y/N]: n"), screen
+    assert all(len(line) <= columns for line in screen[first : last + 1]), screen
+    assert screen[last] != "[y/N]: n" and not screen[last].startswith(" "), screen  # (with the question's end)
