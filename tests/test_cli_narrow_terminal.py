@@ -11,6 +11,7 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.cli._errors import NO_REPLY_HINTS
+from ics35_async.cli._runner import SIMULATOR_NOTE
 from tests.support.terminal import screen_of, typed_on_a_terminal
 
 pytestmark = [
@@ -79,3 +80,11 @@ def test_a_question_wraps_at_words_and_keeps_its_y_n_on_its_last_line(columns: i
     assert asked.startswith("Write") and asked.endswith("EEPROM of servo 1? [y/N]: n"), screen
     assert all(len(line) <= columns for line in screen[first : last + 1]), screen
     assert screen[last] != "[y/N]: n" and not screen[last].startswith(" "), screen  # (with the question's end)
+
+
+def test_a_note_wraps_at_words_under_its_text() -> None:
+    # "note: no --port given: this is the built-in simula" / "tor (for hardware: ...)" at 50 columns.
+    code, written = typed_on_a_terminal(["get", "1", "speed"], [], columns=50, env={"ICS35_PORT": ""})
+    screen = screen_of(written, width=50)
+    assert code == 0, screen
+    assert said(screen, "note:") == [SIMULATOR_NOTE.removeprefix("note: ")], screen

@@ -359,7 +359,8 @@ def test_teach_quits_at_once_with_a_line_where_nothing_answers(tmp_path: Path, k
     screen = "\n".join(screen_of(shown))
     assert "Traceback" not in shown, screen
     assert code == 5 and "no pose captured" in screen, screen  # (nothing captured: nothing written)
-    assert "leg1, leg2, leg3, leg4, leg5 (servo IDs 1, 2, 3, 4, 5 on line legs) did not answer" in screen, screen
+    said = " ".join(screen.split())  # (the warning wrapped at words, its further lines indented)
+    assert "leg1, leg2, leg3, leg4, leg5 (servo IDs 1, 2, 3, 4, 5 on line legs) did not answer" in said, screen
     # Not even the leg line's transaction on the wire as q came (an offline joint's probe, a whole allowance, then
     # a guard read's before that joint's free): under one allowance in all (six allowances before, then two).
     assert took < allowance, took

@@ -54,7 +54,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
-from ._console import SIMULATED_KEY
+from ._console import SIMULATED_KEY, say_labelled
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 from ._paths import check_backup_path, check_output_dir, check_output_path, names_directory
@@ -122,7 +122,7 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
             try:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
-                err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
+                say_labelled("[yellow]warning:[/yellow]", f"servo {i}: EEPROM read failed: {escape(str(exc))}")
                 failed[i] = read_failed_why(exc, settings.baud, echo=settings.echo)
             except (PortLost, ClosedByPortLoss) as exc:
                 if not images:
@@ -183,9 +183,10 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     for i, image in images.items():
         if image.unknown_codes:
             codes = ", ".join(f"{name} 0x{code:02X}" for name, code in image.unknown_codes.items())
-            err.print(
-                f"[yellow]warning:[/yellow] servo {i}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
-                "kept exactly as read; an image holding them cannot be written back"
+            say_labelled(
+                "[yellow]warning:[/yellow]",
+                f"servo {i}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
+                "kept exactly as read; an image holding them cannot be written back",
             )
     there = set(read.unread) | set(read.garbled) | set(read.failed)  # answered, not saved (told apart below)
     missing = [i for i in ids if i not in images and i not in there]
@@ -198,11 +199,12 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 f"at another rate does not: {settings.command_line('scan')} finds every rate)"
             )
         else:
-            err.print(f"[yellow]warning:[/yellow] no answer from ID(s) {ids_text(missing)}: not saved")
+            say_labelled("[yellow]warning:[/yellow]", f"no answer from ID(s) {ids_text(missing)}: not saved")
     if read.garbled:
-        err.print(
-            f"[yellow]warning:[/yellow] ID(s) {ids_text(read.garbled)} answered garbled: not saved (two servos "
-            "sharing an ID, most likely: connect them one at a time and renumber one; or noise)"
+        say_labelled(
+            "[yellow]warning:[/yellow]",
+            f"ID(s) {ids_text(read.garbled)} answered garbled: not saved (two servos "
+            "sharing an ID, most likely: connect them one at a time and renumber one; or noise)",
         )
     if as_table:
         for i, image in images.items():
@@ -434,9 +436,9 @@ def restore(
     backups = load_backups(args, restore_id, keep_baud)
     # Once a file: a file of several servos' backups was saved from the simulator as a whole.
     for source in dict.fromkeys(backup.source for backup in backups if backup.simulated):
-        err.print(
-            f"[yellow]warning:[/yellow] {escape(source)} was read from the built-in simulator "
-            "(no --port when it was saved), not from a servo"
+        say_labelled(
+            "[yellow]warning:[/yellow]",
+            f"{escape(source)} was read from the built-in simulator (no --port when it was saved), not from a servo",
         )
     for backup in backups:
         if backup.saved_id != backup.target and not restore_id and not as_json:

@@ -32,6 +32,7 @@ from ._common import (
     out,
     translate,
 )
+from ._console import say_labelled
 from ._eeprom_view import baud_text, diff_table, flags_text
 
 
@@ -91,16 +92,10 @@ def show_plan(
             else ""
         )
         advice = f"; {escape(flag_advice(plan))}" if unasked else ""
-        err.print(
-            f"[yellow]warning:[/yellow] this clears flag(s) {flags_text(plan.cleared_flags)}{note}{advice}",
-            soft_wrap=True,
-        )
+        say_labelled("[yellow]warning:[/yellow]", f"this clears flag(s) {flags_text(plan.cleared_flags)}{note}{advice}")
     if plan.changes_baud:
         new = int(plan.after.baud_rate)
-        err.print(
-            f"[yellow]warning:[/yellow] {after_baud_change(new)}: {_later_commands(new)}",
-            soft_wrap=True,
-        )
+        say_labelled("[yellow]warning:[/yellow]", f"{after_baud_change(new)}: {_later_commands(new)}")
 
 
 def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, Any]:
@@ -182,7 +177,7 @@ async def write_plans(
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
         if plan.kept_note and not as_json:
-            err.print(f"note: {escape(plan.kept_note)}", soft_wrap=True)
+            say_labelled("note:", escape(plan.kept_note))
     if not pending:
         return WriteBatch([report_of(plan, None) for plan in plans])
     count = sum(len(plan.diff) for plan in pending)

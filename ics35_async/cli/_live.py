@@ -41,7 +41,15 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import LiveTable, ids_argument, live_view, printed_table, scan_progress, wrapped_at_width
+from ._console import (
+    LiveTable,
+    ids_argument,
+    live_view,
+    printed_table,
+    say_labelled,
+    scan_progress,
+    wrapped_at_width,
+)
 from ._live_view import LEAVE_OUT, LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -286,9 +294,10 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
     if asked_all and absent and not quiet:
         err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
     if garbled:  # left out of the stream, said whatever was asked: servos there, which it will not move or read
-        err.print(
-            f"[yellow]warning:[/yellow] ID(s) {ids_text(garbled)} answered garbled: left out (two servos sharing "
-            "an ID, most likely: connect them one at a time and renumber one; or noise)"
+        say_labelled(
+            "[yellow]warning:[/yellow]",
+            f"ID(s) {ids_text(garbled)} answered garbled: left out (two servos sharing "
+            "an ID, most likely: connect them one at a time and renumber one; or noise)",
         )
     return answered
 

@@ -13,7 +13,8 @@ from ..diagnose.system import missing_adapter_notes
 from ..transports import adapter_advice
 from ..transports.listing import SerialPortInfo, adapter_name, kondo_usb_without_port, list_serial_ports
 from ..transports.platforms import latency_timer_advice, port_names_hint
-from ._common import CliError, ExitCode, emit_json, err, json_option, out, settings_of
+from ._common import CliError, ExitCode, emit_json, json_option, out, settings_of
+from ._console import say_labelled
 
 
 def ports_table(found: list[SerialPortInfo]) -> Table:
@@ -70,7 +71,7 @@ def ports(ctx: click.Context, as_json: bool) -> int:
         out.print(ports_table(found))
     if not as_json:
         for note in said:
-            err.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
+            say_labelled("[yellow]note:[/yellow]", escape(note))
     if not found:
         raise CliError(ExitCode.PORT, "no serial ports found", f"is the adapter plugged in? ({port_names_hint()})")
     return 0

@@ -48,7 +48,7 @@ from ..robot.description import check_not_a_port
 from ..robot.motion import MotionError, check_motion
 from ..transports.wire_device import is_url, url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
-from ._console import ids_argument
+from ._console import ids_argument, say_labelled
 from ._paths import InputPathError
 
 T = TypeVar("T")
@@ -204,7 +204,7 @@ def safety_error(exc: SafetyStop, left: str | None = None) -> CliError:
 
 def show_warnings(robot: Robot) -> None:
     for warning in robot.warnings:
-        err.print(f"[yellow]warning:[/yellow] {escape(warning)}", soft_wrap=True)
+        say_labelled("[yellow]warning:[/yellow]", escape(warning))
 
 
 async def first_pose(robot: Robot) -> dict[str, float]:

@@ -48,7 +48,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
-from ._console import TitleInParts, signed_tenths
+from ._console import TitleInParts, say_labelled, signed_tenths
 from ._robot_common import (
     Opening,
     TypedLines,
@@ -204,10 +204,10 @@ def teach(
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
     if target.exists():
-        err.print(
-            f"note: {escape(str(target))} exists: the poses you capture replace it when teaching ends "
+        say_labelled(
+            "note:",
+            f"{escape(str(target))} exists: the poses you capture replace it when teaching ends "
             f"(its content is kept as {escape(str(target.resolve()))}.bak)",
-            soft_wrap=True,
         )
     ask_before_freeing_all(description, robot_file, joints, yes)
     keyframes: list[Keyframe] = []
@@ -495,7 +495,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                 spec = description.joints[name]
                 note = reverse_note(robot_file, spec, description.lines[spec.line], eeprom)
                 if note is not None:
-                    err.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
+                    say_labelled("[yellow]note:[/yellow]", escape(note))
             # A lost port ends the lines: said at once, not at the next Enter (the hands would go on moving
             # joints no longer read).
             watcher = asyncio.ensure_future(watch_lines(robot))
@@ -550,18 +550,20 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     narrow: list[NarrowRange] = []
     for name in names:
         if name not in neutral and name in low:  # (plugged back in at step 2: it did answer, after step 1)
-            err.print(
-                f"[yellow]warning:[/yellow] joint {escape(name)} had no neutral (it did not answer at step 1): not "
-                "calibrated (calibrate it again with --joints)"
+            say_labelled(
+                "[yellow]warning:[/yellow]",
+                f"joint {escape(name)} had no neutral (it did not answer at step 1): not "
+                "calibrated (calibrate it again with --joints)",
             )
             continue
         if name not in neutral or name not in low:
-            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
+            say_labelled("[yellow]warning:[/yellow]", f"joint {escape(name)} did not answer: not calibrated")
             continue
         if name in silent:
-            err.print(
-                f"[yellow]warning:[/yellow] joint {escape(name)} stopped answering during step 2: not calibrated "
-                "(its range may be cut short; calibrate it again with --joints)"
+            say_labelled(
+                "[yellow]warning:[/yellow]",
+                f"joint {escape(name)} stopped answering during step 2: not calibrated "
+                "(its range may be cut short; calibrate it again with --joints)",
             )
             continue
         try:
@@ -591,7 +593,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         # A free servo turns by hand past its pulse limits, which bound only the positions it is sent.
         problem = limit_problem(robot_file, joint, eeproms[name]) if name in eeproms else None
         if problem is not None:
-            err.print(f"[yellow]warning:[/yellow] {escape(problem)}: commands stop there", soft_wrap=True)
+            say_labelled("[yellow]warning:[/yellow]", f"{escape(problem)}: commands stop there")
     try:
         written = write_calibration(robot_file, description, calibrated)
     except OSError as exc:  # (the folder changed since the start: the values found are printed above)
@@ -601,16 +603,17 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     if written.in_place:
         out.print(f"written into {escape(str(written.path))} (comments kept)")
     elif written.comments_kept:
-        err.print(
-            f"[yellow]note:[/yellow] {escape(robot_file)} has joints written as inline tables or dotted keys, "
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            f"{escape(robot_file)} has joints written as inline tables or dotted keys, "
             f"which calibrate does not edit in place; wrote {escape(str(written.path))}: that file with only the "
             "calibration changed (compare the two, then rename it over)",
-            soft_wrap=True,
         )
     else:
-        err.print(
-            f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
-            f"{escape(str(written.path))} (a complete file, without comments)"
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            f"{escape(robot_file)} could not be edited in place; wrote "
+            f"{escape(str(written.path))} (a complete file, without comments)",
         )
     if written.backup is not None:
         out.print(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}")

@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
-from ._console import err
+from ._console import say_labelled
 from ._errors import NobodyAnswered, no_reply_error, nobody_at_this_rate, translate
 from ._loop import run_loop
 from ._paths import check_line_files
@@ -30,7 +30,7 @@ def advise(port: str) -> None:
         return
     _advised.add(port)
     for warning in adapter_advice(port):
-        err.print(f"[yellow]warning:[/yellow] {escape(warning)}", soft_wrap=True)
+        say_labelled("[yellow]warning:[/yellow]", escape(warning))
 
 
 def note_simulator(settings: Settings) -> None:
@@ -39,7 +39,8 @@ def note_simulator(settings: Settings) -> None:
     (``ics35 get 1 speed | cut ...``); a JSON result says it as data instead (``"simulated": true``)."""
     if settings.port_defaulted:
         settings.port_defaulted = False
-        err.print(f"[dim]{escape(SIMULATOR_NOTE)}[/dim]")
+        label, text = SIMULATOR_NOTE.split(" ", 1)
+        say_labelled(f"[dim]{label}[/dim]", f"[dim]{escape(text)}[/dim]")
         settings.simulated = True
 
 

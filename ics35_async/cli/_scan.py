@@ -27,7 +27,6 @@ from ._common import (
     answered_garbled,
     confirm,
     emit_json,
-    err,
     ids_text,
     json_option,
     nothing_answered,
@@ -38,7 +37,7 @@ from ._common import (
     translate,
     yes_option,
 )
-from ._console import print_heading, printed_table, scan_progress
+from ._console import print_heading, printed_table, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
 
 # --------------------------------------------------------------------------- scan
@@ -145,46 +144,45 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
 
 def scan_notes(settings: Settings, report: ScanReport) -> None:
     if report.rate_blind:
-        err.print(
-            f"[yellow]note:[/yellow] {escape(rate_blind_note(settings.port))}; probed once. "
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            f"{escape(rate_blind_note(settings.port))}; probed once. "
             + ("Each servo's rate shown is its EEPROM's." if any(s.eeprom for s in report.servos) else ""),
-            soft_wrap=True,
         )
     for baud, why in report.skipped.items():
-        err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
+        say_labelled("[yellow]warning:[/yellow]", f"skipped {baud} baud: {escape(why)}")
     for s in report.servos:
         if s.eeprom_error is not None:
             heard = ", ".join(str(b) for b in s.answered_at)
             again = settings.command_line("--baud", str(s.baud), "eeprom", "dump", str(s.servo_id), "--table")
-            err.print(
-                f"[yellow]warning:[/yellow] servo {s.servo_id}: its EEPROM could not be read (after retries), so its "
+            say_labelled(
+                "[yellow]warning:[/yellow]",
+                f"servo {s.servo_id}: its EEPROM could not be read (after retries), so its "
                 f"rate is unconfirmed: it answered at {heard} baud; read it again with: {escape(again)}  "
                 f"(last error: {escape(str(s.eeprom_error))})",
-                soft_wrap=True,
             )
     if report.garbled and report.echo_evidence is None:
         where = ", ".join(f"ID {i} at {baud}" for baud, i, _ in report.garbled)
-        err.print(
-            f"[yellow]warning:[/yellow] garbled replies from {where}: two servos sharing an ID, "
-            "a servo at another baud rate, or noise",
-            soft_wrap=True,
+        say_labelled(
+            "[yellow]warning:[/yellow]",
+            f"garbled replies from {where}: two servos sharing an ID, a servo at another baud rate, or noise",
         )
     for rate in report.rates:
         if rate.only_id_read:
-            err.print(
-                f"[yellow]note:[/yellow] at {rate.baud} baud a device answered the ID read (as ID {rate.id_answer}) "
+            say_labelled(
+                "[yellow]note:[/yellow]",
+                f"at {rate.baud} baud a device answered the ID read (as ID {rate.id_answer}) "
                 "but no stretch read: if that ID was not scanned, try --ids "
                 f"{rate.id_answer}; otherwise it is not an ICS 3.5 servo (a board or sensor answers the ID "
                 "command and memory reads only) or its other replies are lost (wiring, power)",
-                soft_wrap=True,
             )
     several = [s for s in report.servos if len(s.answered_at) > 1]
     if several:
-        err.print(
-            f"[yellow]note:[/yellow] servo(s) {ids_text(s.servo_id for s in several)} answered at several baud rates: "
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            f"servo(s) {ids_text(s.servo_id for s in several)} answered at several baud rates: "
             "this line does not enforce rates (a pty or a bridge); each is listed once, at the rate its EEPROM names "
             "(where it could be read)",
-            soft_wrap=True,
         )
     if not report.servos:
         return
@@ -201,10 +199,10 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     if len(by_baud) > 1:
         most = max(by_baud, key=lambda b: by_baud[b])
         move = settings.command_line("--baud", "ITS_RATE", "eeprom", "set", "ID", f"baud_rate={most}", "--change-baud")
-        err.print(
-            "[yellow]note:[/yellow] servos at different baud rates cannot share one bus session; to bring one to "
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            "servos at different baud rates cannot share one bus session; to bring one to "
             f"{most} baud: {escape(move)}, then power-cycle it",
-            soft_wrap=True,
         )
 
 

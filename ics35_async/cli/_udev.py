@@ -13,6 +13,7 @@ from rich.markup import escape
 
 from ..diagnose.udev import RELOAD_STEPS, RULES_PATH, rules_text, serial_group
 from ._common import CliError, ExitCode, ask_yes_no, err
+from ._console import say_labelled
 
 MANUAL = (
     "to do it by hand: save the rules (ics35 udev > 99-ics35-kondo.rules), "
@@ -114,7 +115,9 @@ def udev(group: str | None, do_install: bool, path: Path, yes: bool) -> int:
     if not do_install:
         click.echo(text, nl=False)
         if unknown:  # (rules printed for another machine may name its group)
-            err.print(f"[yellow]warning:[/yellow] {escape(unknown)}: on this machine udev would leave the port root's")
+            say_labelled(
+                "[yellow]warning:[/yellow]", f"{escape(unknown)}: on this machine udev would leave the port root's"
+            )
         return 0
     if unknown:
         # A rule with an unknown GROUP leaves the port root's, found out at the next plug-in.
@@ -128,9 +131,10 @@ def udev(group: str | None, do_install: bool, path: Path, yes: bool) -> int:
     for step in RELOAD_STEPS:
         err.print(f"  {escape(step)}")
     if shutil.which("udevadm") is None:
-        err.print(
-            "[yellow]note:[/yellow] udevadm is not on this system (or not on PATH): udev may not run here"
-            " (a container?); the rules act where udev runs, on the machine the adapter plugs into"
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            "udevadm is not on this system (or not on PATH): udev may not run here"
+            " (a container?); the rules act where udev runs, on the machine the adapter plugs into",
         )
     err.print(
         f"and make sure you are in group {escape(chosen)}: groups  (if not: sudo usermod -aG {escape(chosen)} "

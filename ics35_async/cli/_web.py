@@ -11,6 +11,7 @@ from ..errors import InvalidArgument
 from ..extras import extra_hint
 from ..terminal import clear_after_ctrl_c
 from ._common import CliError, ExitCode, err, settings_of
+from ._console import say_labelled
 from ._loop import loop_factory, quiet_executor_shutdown
 from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option
@@ -70,9 +71,10 @@ def web(
     except InvalidArgument as exc:
         raise click.BadParameter(str(exc), param_hint="--listen" if "listen" in str(exc) else "--token-file") from None
     if not where.loopback:
-        err.print(
-            f"[yellow]warning:[/yellow] serving on {escape(where.host)}: any machine that can reach it and "
-            "knows the token can move these servos; keep the URL private"
+        say_labelled(
+            "[yellow]warning:[/yellow]",
+            f"serving on {escape(where.host)}: any machine that can reach it and "
+            "knows the token can move these servos; keep the URL private",
         )
     line_from_robot = settings.port_defaulted and robot_file is not None
     if line_from_robot:
@@ -113,7 +115,7 @@ def web(
         sys.stdout.flush()
 
     def warn(text: str) -> None:
-        err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
+        say_labelled("[yellow]warning:[/yellow]", escape(text))
 
     def note(text: str) -> None:
         clear_after_ctrl_c()  # (said as the server stops: the ^C echoed before it goes)
