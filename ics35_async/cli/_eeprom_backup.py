@@ -66,7 +66,7 @@ from ._runner import line_error
 def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[str, Path | None]:
     """Where the dump goes ("stdout", "file", "dir" or "several": one file of several servos' backups), checked
     before the line is touched: for "dir", the directory (each servo's file in it named as
-    :func:`backup_file_name` names it, one servo's too), else the file."""
+    :func:`backup_file_name` names it), else the file (one servo's into a directory: its file there)."""
     if output is None:
         if len(ids) > 1 and not as_table:
             raise click.BadParameter(
@@ -77,6 +77,8 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
     if empty_path(output):
         raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
     if names_directory(output):
+        if len(ids) == 1:  # (its file in it named as a dump of several names it: DIR/servo-01.json)
+            return "file", check_output_path(output, "--output", default_name=backup_file_name(ids))
         return "dir", check_output_dir(output, "--output")
     path = Path(output)
     if len(ids) > 1 and path.suffix.lower() != ".json" and not path.is_file():
