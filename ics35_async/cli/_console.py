@@ -509,11 +509,12 @@ NARROWEST_TEXT = 16
 
 
 def say_labelled(label: str, text: str) -> None:
-    """``label`` (``error:``, ``  hint:``) and ``text`` after it (both rich markup), on stderr.  On a terminal, wrapped
-    at words to its width, each further line indented under the text: the consoles soft-wrap (see ``out``), so the
-    terminal cut a long line at its last column, mid-word (``chec`` / ``k the cable``), and its further lines began
-    under the label.  Into a log (a pipe, a file, CI), one line however long, as a table goes into one whole (see
-    :func:`printed_table`): read later in a wider window, and found whole by grep."""
+    """``label`` (``error:``, ``  hint:``, ``warning:``, ``note:``) and ``text`` after it (both rich markup), on
+    stderr.  On a terminal, wrapped at words to its width, each further line indented under the text: the consoles
+    soft-wrap (see ``out``), so the terminal cut a long line at its last column, mid-word (``chec`` / ``k the
+    cable``), and its further lines began under the label.  Into a log (a pipe, a file, CI), one line however long,
+    as a table goes into one whole (see :func:`printed_table`): read later in a wider window, and found whole by
+    grep."""
     head, body = Text.from_markup(label), Text.from_markup(text)
     if not err.is_terminal:
         err.print(Text.assemble(head, " ", body), soft_wrap=True)
