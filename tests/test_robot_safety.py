@@ -13,7 +13,7 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import InvalidArgument, Robot, SafetyStop, State, UnsafeOperation, open_robot, units
+from ics35_async import IcsError, InvalidArgument, Robot, SafetyStop, State, UnsafeOperation, open_robot, units
 from ics35_async.protocol import Param
 from ics35_async.robot import MotionStopped
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
@@ -622,3 +622,68 @@ def test_two_garbled_telemetry_replies_crossing_different_limits_do_not_trip_the
     robot = run_standing(rig, main)
     assert robot.trips == []
     assert not neck.free
+
+
+def test_a_joint_gone_offline_or_on_a_lost_line_has_no_temperature_or_current_until_read_again() -> None:
+    # Robot.telemetry kept the last readings of a servo unplugged (or of a line whose port was lost) as if they
+    # were its own now, and once it answered again, until the watch read it anew: a view of the robot showed a
+    # knee at its old 42 C that came back at 70 C.
+    rig = make_rig(safety={"continue_on_offline": True})
+    shown: dict[str, list[float | None]] = {"offline": [], "lost": [], "back": []}
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, reconnect=True, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                assert (robot.telemetry["knee"].temperature_c or 0) < 50  # (the simulator's ambient)
+                knee = rig.lower.remove_servo(2)
+                await frames_until(robot, lambda: "knee" in robot.unreached)
+                shown["offline"].append(robot.telemetry["knee"].temperature_c)
+                knee.temperature_celsius = 70.0
+                rig.lower.add_device(knee)
+                while "knee" not in robot.held:
+                    shown["back"].append(robot.telemetry["knee"].temperature_c)
+                    await robot.wait_frame(robot.latest.cycle)
+                reads = robot.telemetry["knee"].reads
+                while robot.telemetry["knee"].reads == reads:  # (until the watch has read it since it came back)
+                    shown["back"].append(robot.telemetry["knee"].temperature_c)
+                    await robot.wait_frame(robot.latest.cycle)
+                assert (robot.telemetry["knee"].temperature_c or 0) > 65  # read again: its own now
+                robot.set_targets({"knee": 0.0})
+                await frames_until(robot, lambda: robot.telemetry["hip"].temperature_c is not None)
+                rig.lower.unplug()
+                await frames_until(robot, lambda: robot.group["lower"].state is State.LOST)
+                shown["lost"] += [robot.telemetry[name].temperature_c for name in ("hip", "knee")]
+                shown["lost"].append(robot.telemetry["hip"].current)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert shown["offline"] == [None] and shown["lost"] == [None, None, None], shown
+    assert all(seen is None or seen > 65 for seen in shown["back"]), shown  # (never the 42 C from before)
+
+
+def test_a_joint_on_a_line_lost_for_good_has_no_temperature_or_current() -> None:
+    # Without reconnect a lost port ends its line: `ics35 play`'s last table said LINE LOST beside the
+    # temperature and current read before, as if they were the servos' now.
+    rig = make_rig()
+    shown: list[float | int | None] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                rig.lower.unplug()
+                with pytest.raises(IcsError):
+                    while True:
+                        await robot.wait_frame(robot.latest.cycle)
+                while robot.group["lower"].state not in (State.CLOSED, State.DRAINING):
+                    await anyio.sleep(0.01)
+                shown.extend([robot.telemetry["knee"].temperature_c, robot.telemetry["knee"].current])
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert shown == [None, None], shown

@@ -69,8 +69,8 @@ def joint_table(
 
     ``lost``: the robot's lines stopped (a port lost); the joints of each line whose port is gone say
     so (their positions are only the last ones read), the others keep their state.  A joint whose servo is
-    offline shows no target, temperature or current ("-", as its position): nothing is sent to it, and the last
-    readings are not its own now.
+    offline shows no target ("-", as its position): nothing is sent to it.  Its temperature and current are those
+    :attr:`Robot.telemetry` has: none for a joint offline, on a lost line, or not read again since it came back.
     ``offsets``: servo degrees that read 0 in place of the robot file's, by joint (calibrate's, as found): its
     ``pos°`` from that offset.
     """
@@ -96,7 +96,7 @@ def joint_table(
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
-        silent = name in unreached  # (its servo offline: no target, temperature or current of its own now)
+        silent = name in unreached  # (its servo offline: no target of its own now; robot.telemetry has no reading)
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
@@ -115,8 +115,8 @@ def joint_table(
             f"{spec.line}:{spec.id}",
             "-" if name in uncommanded or waiting else "free" if target is None else _deg(target),
             _deg(_reframed(spec, positions.get(name), (offsets or {}).get(name))),
-            "-" if silent or seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
-            "-" if silent or seen is None or seen.current is None else str(seen.current),
+            "-" if seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
+            "-" if seen is None or seen.current is None else str(seen.current),
             state,
         ]
         if extra is not None:

@@ -177,9 +177,9 @@ class Robot:
     def unreached(self) -> frozenset[str]:
         """The joints whose servo is offline as of the newest frame: their stream sends them nothing, so a target
         set meanwhile (a motion playing on past one) never reached them, and the temperature and current last
-        read are not theirs now.  A view of the robot shows neither for them ("-": ``ics35 play``'s live table,
-        the configurator's Robot page), where :attr:`targets` keeps what they were asked; once a servo answers
-        again its joint is :attr:`held`."""
+        read are not theirs now (:attr:`telemetry` has none).  A view of the robot shows neither for them ("-":
+        ``ics35 play``'s live table, the configurator's Robot page), where :attr:`targets` keeps what they were
+        asked; once a servo answers again its joint is :attr:`held`."""
         frame = self._latest
         return frozenset() if frame is None else frame.offline
 
@@ -194,8 +194,17 @@ class Robot:
 
     @property
     def telemetry(self) -> dict[str, JointTelemetry]:
-        """The newest temperature and current of every joint (read by the safety watch)."""
-        return self.watch.telemetry
+        """The temperature and current of every joint's servo now, as the safety watch last read them.  A joint
+        whose servo is offline (:attr:`unreached`) or on a line whose port is lost (:attr:`lost`, or for good:
+        ``bus.port_lost``) has none (``None``), nor has one since, until the watch reads it again: the servo may
+        have come back restarted, and what was read before is not its own now.  A view shows "-" for them
+        (``ics35 play``'s live table, the configurator's Robot page)."""
+        ended = {line for line, bus in self.group.buses.items() if bus.port_lost}
+        gone = self.unreached | self.lost | {name for name, joint in self.joints.items() if joint.line in ended}
+        return {
+            name: dataclasses.replace(seen, temperature_c=None, current=None) if name in gone else seen
+            for name, seen in self.watch.telemetry.items()
+        }
 
     @property
     def tripped(self) -> dict[str, SafetyStop]:
@@ -1033,6 +1042,7 @@ class Robot:
         # line's frame, brought again with every frame, is no reading from after it is back.)
         for name in offline | lost:
             self._last_read.pop(name, None)
+        self.watch.forget(offline | lost)  # (nor its temperature and current: read again once it is back)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
         # What the streams hold now, not as of this frame's cycles: a joint whose target was set since is held
         # no more, and one that came back from offline since is (the robot may lag behind its frames).
@@ -1112,6 +1122,7 @@ class Robot:
         frame comes: the motions give up the lost lines' joints here (a motion with none left ends), and what
         waits for replies (on_wire, free, read_pose) is woken to leave them out."""
         self._lost_lines |= {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        self.watch.forget(self.lost)  # (no frame may come to say so: every line lost)
         for name in self.lost:  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
             self._velocity[name] = 0.0
             self._coasting.pop(name, None)

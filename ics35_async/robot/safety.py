@@ -15,7 +15,7 @@ one): nothing of it is under control, and it answers nothing to read.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -106,6 +106,14 @@ class SafetyWatch:
         self.joints = list(joints)
         self.telemetry: dict[str, JointTelemetry] = {j.name: JointTelemetry() for j in self.joints}
         self.rounds: dict[str, int] = dict.fromkeys(self.buses, 0)
+
+    def forget(self, joints: Iterable[str]) -> None:
+        """Drop the readings of ``joints``, whose servo went offline or whose line lost its port: it may come back
+        restarted, cooler or hotter, and what was read before is not its own now (its counts stay)."""
+        for name in joints:
+            seen = self.telemetry.get(name)
+            if seen is not None:
+                seen.temperature_c = seen.current = None
 
     async def run(self, robot: WatchedRobot) -> None:
         if not self.spec.telemetry_per_cycle:

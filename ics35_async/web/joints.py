@@ -317,8 +317,8 @@ class RobotSession:
         robot = self.robot
         frame = None if robot is None else robot.latest
         telemetry = {} if robot is None else robot.telemetry
-        # Sent nothing, their servo offline: no target went out, no reading is theirs now (the robot's rule, as
-        # `ics35 play`'s live table follows it); their targets stay, where their sliders stand.
+        # Sent nothing, their servo offline: no target went out (the robot's rule, as `ics35 play`'s live table
+        # follows it); their targets stay, where their sliders stand.  Their readings: robot.telemetry has none.
         unreached = frozenset() if robot is None else robot.unreached
         tripped = {} if robot is None else robot.tripped
         # Sent nothing since their servo answered again (or their line came back), and why: the target they
@@ -332,7 +332,7 @@ class RobotSession:
         uncommanded = self.last_uncommanded if kept is None else kept.uncommanded
         joints = []
         for name, spec in self.description.joints.items():
-            t = None if name in unreached else telemetry.get(name)
+            t = telemetry.get(name)
             stop = tripped.get(name)
             joints.append(
                 {
