@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import re
@@ -15,9 +16,14 @@ from typing import Any
 
 import pytest
 
+from ics35_async import open_bus
 from ics35_async.cli import ExitCode
+from ics35_async.cli._console import TitleInParts
+from ics35_async.cli._live_view import LiveState
+from ics35_async.cli._telemetry import Telemetry
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw, FaultInjector
+from ics35_async.units import temperature_to_celsius
 from tests.support.sim_servos import UnplugsWhenAsked, free_command
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import scaled
@@ -569,3 +575,39 @@ def test_monitor_on_the_built_in_simulator_names_it_as_its_other_lines_do(cli: A
     assert "scanning the built-in simulator at 115200 baud" in said, said
     assert "realtime" not in said, said
     assert "no servo among 0-31 can report its position" in said, said
+
+
+def test_a_servo_back_from_offline_shows_no_reading_from_before_until_read_again(sim_line: Any) -> None:
+    # monitor's and demo's table: a servo unplugged went "off" with no readings shown, but once it answered again
+    # its row showed the temperature and current read before it went, as if its own now, until telemetry read it
+    # anew (it may have come back restarted, hotter or cooler).
+    sim, url = sim_line([3])
+    shown_back: list[tuple[int | None, int | None, int | None]] = []
+
+    async def main() -> None:
+        async with asyncio.timeout(scaled(20)), open_bus(url, adapter_latency=0.01) as bus:
+            stream = bus.stream([3], on_close="hold")
+            telemetry = Telemetry(bus, [3], 1, probe_interval=stream.probe_interval)
+            state = LiveState([3], TitleInParts(("monitor",), frozenset()), None)
+            async with stream:
+                stage = "reading"
+                while stage != "read again":
+                    frame = await stream.next_frame()
+                    state.update(frame, 0.0, stream)
+                    if stage == "reading" and 3 in telemetry.temperature:
+                        servo, stage = sim.remove_servo(3), "unplugged"
+                    elif stage == "unplugged" and 3 in frame.offline:
+                        servo.temperature_celsius = 70.0
+                        sim.add_device(servo)
+                        stage = "away"
+                    elif stage == "away" and 3 not in frame.offline:
+                        stage = "back"
+                    if stage == "back":
+                        shown_back.append(state.readings(3, telemetry))
+                        if 3 in telemetry.temperature and temperature_to_celsius(telemetry.temperature[3]) > 65:
+                            stage = "read again"
+                    telemetry.after_frame(frame.unanswered, offline=frame.offline)
+
+    asyncio.run(main())
+    temperatures = [None if temp is None else temperature_to_celsius(temp) for _, _, temp in shown_back]
+    assert temperatures and all(t is None or t > 65 for t in temperatures), temperatures  # (never the 42 C before)

@@ -49,8 +49,11 @@ class Telemetry:
         self._reads: set[asyncio.Future[int]] = set()  # outstanding (cancelled by stop)
         self._stopped = False
 
-    def after_frame(self, unanswered: Collection[int] = ()) -> None:
-        """Queue the next round of reads, skipping the IDs in ``unanswered`` (the frame's)."""
+    def after_frame(self, unanswered: Collection[int] = (), offline: Collection[int] = ()) -> None:
+        """Queue the next round of reads, skipping the IDs in ``unanswered`` (the frame's).  The readings of the
+        IDs in ``offline`` (the frame's) are dropped: a servo back may have restarted, hotter or cooler, and until
+        it is read again none is its own (as a robot's telemetry: see ``Robot.telemetry``)."""
+        self.forget(offline)
         # At most one round outstanding: telemetry must never starve the stream.
         if self._reads or self._stopped or not self.per_cycle or not self.ids:
             return
@@ -80,11 +83,12 @@ class Telemetry:
                 self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
 
-    def forget(self) -> None:
-        """Drop the readings so far (the port lost: they are no longer the servos' now); read again from the next
-        round on."""
-        self.current.clear()
-        self.temperature.clear()
+    def forget(self, ids: Collection[int] | None = None) -> None:
+        """Drop the readings of ``ids`` (default: every ID's; the port lost): they are no longer the servos' now;
+        read again from the next round on."""
+        for sid in self.ids if ids is None else ids:
+            self.current.pop(sid, None)
+            self.temperature.pop(sid, None)
 
     def stop(self) -> None:
         """No more reads; those still queued are withdrawn (one on the wire finishes there, its value dropped).
