@@ -1285,7 +1285,9 @@ def test_teachs_clock_reads_the_motions_time_the_poses_it_records_get(tmp_path: 
     said = "\n".join(screen)
     assert code == 0 and "Traceback" not in written, said
     taught = [frame["time"] for frame in json.loads(motion.read_text())["keyframes"]]
-    assert f"pose 2 at {taught[1]:.2f} s" in said, said
+    # The time said is the one recorded, to its last digit ("pose 2 at 2.94 s" of a pose saved at 2.936 s).
+    shown = [float(m[1]) for line in screen if (m := re.search(r"pose 2 at ([\d.]+) s", line))]
+    assert shown == [taught[1]], (shown, taught, said)
     # The view's last status line, drawn after the second capture: the clock read just past that pose's time.
     clock = [float(m[1]) for line in screen if (m := re.match(r"t= *([\d.]+) s", line))]
     assert clock, said

@@ -379,7 +379,14 @@ async def capture(
         return
     keyframes.append(Keyframe(when, taken))
     # Through the screen: on a terminal a line printed beside the live view is written over by its next redraw.
-    screen.say("\n".join([f"pose {len(keyframes)} at {when:.2f} s", *warnings]))
+    screen.say("\n".join([f"pose {len(keyframes)} at {taught_time(when)} s", *warnings]))
+
+
+def taught_time(seconds: float) -> str:
+    """``2.936``, ``1.00``: a pose's time as the motion records it (to the millisecond: see :class:`TaughtTimes`),
+    two decimals at least; said to hundredths, a pose at 2.936 s read as 2.94 beside the file's 2.936."""
+    text = f"{seconds:.3f}"
+    return text[:-1] if text.endswith("0") else text
 
 
 def signed_count_angle(value: float) -> str:
