@@ -123,6 +123,26 @@ class Frame:
         }
 
 
+V = TypeVar("V")
+
+
+class LiveReadings(dict[int, V]):
+    """The newest reading of each of a stream's servos taken between its cycles (a current, a temperature), by ID,
+    kept only while it is the servo's own now: :meth:`follow` drops those of the servos a frame has offline,
+    :meth:`forget` those of every servo (the port lost).  A servo back from either has none until it is read
+    anew: it may have restarted, hotter or cooler.  (A robot's joints follow the same rule: ``Robot.telemetry``.)
+    A view of the stream shows "-" for a servo with none: the monitor's table, the configurator's live plots."""
+
+    def follow(self, frame: Frame) -> None:
+        """Drop the readings of the servos ``frame`` has offline."""
+        for servo_id in frame.offline:
+            self.pop(servo_id, None)
+
+    def forget(self) -> None:
+        """Drop every reading (the port lost: none is a servo's now)."""
+        self.clear()
+
+
 @dataclass
 class StreamStats:
     """What a stream has done so far (:attr:`Stream.stats <ics35_async.Stream.stats>`); times in seconds.

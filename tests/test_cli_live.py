@@ -606,7 +606,7 @@ def test_a_servo_back_from_offline_shows_no_reading_from_before_until_read_again
                         shown_back.append(state.readings(3, telemetry))
                         if 3 in telemetry.temperature and temperature_to_celsius(telemetry.temperature[3]) > 65:
                             stage = "read again"
-                    telemetry.after_frame(frame.unanswered, offline=frame.offline)
+                    telemetry.after_frame(frame)
 
     asyncio.run(main())
     temperatures = [None if temp is None else temperature_to_celsius(temp) for _, _, temp in shown_back]

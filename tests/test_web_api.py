@@ -955,6 +955,35 @@ def test_the_live_plots_start_an_id_their_probes_found_silent_offline(serve: Any
     assert [t.command for t in log[frees[0] : frees[3]] if t.servo_id == 5] == []
 
 
+def test_the_live_plots_show_no_current_or_temperature_of_a_servo_gone_offline_until_read_again(serve: Any) -> None:
+    # The plots (and the Line page's rows, from the same readings) kept an unplugged servo's last temperature and
+    # current, sent with every frame as if read then, and once it answered again until it was read anew (it may
+    # have come back hotter or cooler).
+    client, sim = serve((1, 3), log_size=None)
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
+    deadline = time.monotonic() + GUARD
+
+    def frame_when(done: Any) -> dict[str, Any]:
+        while time.monotonic() < deadline:
+            frame = client.get("/api/live").json()
+            if frame is not None and done(frame):
+                return frame  # type: ignore[no-any-return]
+            time.sleep(0.01)
+        raise AssertionError("no such frame")
+
+    frame_when(lambda f: "3" in f["temperature"] and "3" in f["current"])
+    servo = sim.remove_servo(3)
+    away = frame_when(lambda f: 3 in f["offline"])
+    servo.temperature_celsius = 70.0
+    sim.add_device(servo)
+    back = [frame_when(lambda f: 3 not in f["offline"])]
+    while "3" not in back[-1]["temperature"]:
+        back.append(frame_when(lambda f: True))
+    post(client, "/api/live/stop")
+    assert "3" not in away["temperature"] and "3" not in away["current"], away
+    assert all(f["temperature"].get("3", 70) > 65 for f in back), back  # (never the 42 C from before)
+
+
 def test_the_live_stream_is_paced_so_an_instant_line_does_not_take_the_servers_cpu(serve: Any) -> None:
     # The simulator answers at once: an unpaced stream would cycle thousands of times a second on one
     # core, for a page sent 25 updates a second.  The rate is taken from the frames' own times.

@@ -175,7 +175,7 @@ async def run_live(
                                     wanted = targets(elapsed, frame)
                                     stream.set_targets(wanted)
                                     state.targets.update(wanted)
-                                telemetry.after_frame(frame.unanswered, frame.offline)
+                                telemetry.after_frame(frame)
                                 if options.plot:
                                     recorder.add(elapsed, frame)
                                 draw_if_due(now)

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Sequence
 
 from .. import protocol
 from ..bus import Bus, Priority
 from ..errors import PortLost, ReplyError
+from ..frames import Frame, LiveReadings
 from ..protocol import Param
 
 
@@ -40,8 +41,9 @@ class Telemetry:
         self.probe_interval = probe_interval
         self.fail_limit = fail_limit
         self.clock = clock
-        self.current: dict[int, int] = {}
-        self.temperature: dict[int, int] = {}
+        # (kept while each is the servo's own now: see LiveReadings)
+        self.current: LiveReadings[int] = LiveReadings()
+        self.temperature: LiveReadings[int] = LiveReadings()
         self.errors: dict[int, int] = dict.fromkeys(self.ids, 0)
         self._fail_run: dict[int, int] = dict.fromkeys(self.ids, 0)
         self._next_probe: dict[int, float] = dict.fromkeys(self.ids, 0.0)
@@ -49,11 +51,12 @@ class Telemetry:
         self._reads: set[asyncio.Future[int]] = set()  # outstanding (cancelled by stop)
         self._stopped = False
 
-    def after_frame(self, unanswered: Collection[int] = (), offline: Collection[int] = ()) -> None:
-        """Queue the next round of reads, skipping the IDs in ``unanswered`` (the frame's).  The readings of the
-        IDs in ``offline`` (the frame's) are dropped: a servo back may have restarted, hotter or cooler, and until
-        it is read again none is its own (as a robot's telemetry: see ``Robot.telemetry``)."""
-        self.forget(offline)
+    def after_frame(self, frame: Frame) -> None:
+        """Drop the readings of the servos ``frame`` has offline (see :class:`LiveReadings`), and queue the next
+        round of reads, skipping the IDs the frame has unanswered."""
+        self.current.follow(frame)
+        self.temperature.follow(frame)
+        unanswered = frame.unanswered
         # At most one round outstanding: telemetry must never starve the stream.
         if self._reads or self._stopped or not self.per_cycle or not self.ids:
             return
@@ -83,12 +86,11 @@ class Telemetry:
                 self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
 
-    def forget(self, ids: Collection[int] | None = None) -> None:
-        """Drop the readings of ``ids`` (default: every ID's; the port lost): they are no longer the servos' now;
-        read again from the next round on."""
-        for sid in self.ids if ids is None else ids:
-            self.current.pop(sid, None)
-            self.temperature.pop(sid, None)
+    def forget(self) -> None:
+        """Drop the readings so far (the port lost: they are no longer the servos' now); read again from the next
+        round on."""
+        self.current.forget()
+        self.temperature.forget()
 
     def stop(self) -> None:
         """No more reads; those still queued are withdrawn (one on the wire finishes there, its value dropped).
@@ -98,7 +100,7 @@ class Telemetry:
         for read in list(self._reads):
             read.cancel()
 
-    def _done_callback(self, sid: int, store: dict[int, int]) -> Callable[[asyncio.Future[int]], None]:
+    def _done_callback(self, sid: int, store: LiveReadings[int]) -> Callable[[asyncio.Future[int]], None]:
         def done(fut: asyncio.Future[int]) -> None:
             self._reads.discard(fut)
             if fut.cancelled():

@@ -21,6 +21,7 @@ from typing import Any
 from .. import protocol
 from ..bus import Bus, Priority
 from ..errors import IcsError, UnsafeOperation
+from ..frames import Frame, LiveReadings
 from ..policies import plan_position_stream
 from ..protocol import Param
 from ..stream import WATCH, Stream
@@ -61,9 +62,10 @@ class LiveView:
         self.kept_held: list[int] = []  # ICS 3.5 servos a page held: streamed their target, not freed
         self.freed: list[int] = []  # ICS 3.5 servos it frees to read them
         self.left_out: list[int] = []  # ICS 3.5 servos not plotted: freeing them was not asked for
-        self.current: dict[int, int] = {}
-        self.temperature: dict[int, float] = {}  # (Celsius: the plots')
-        self.temperature_text: dict[int, str] = {}  # (the Line page's, in its words)
+        # (each kept while it is the servo's own now: see LiveReadings)
+        self.current: LiveReadings[int] = LiveReadings()
+        self.temperature: LiveReadings[float] = LiveReadings()  # (Celsius: the plots')
+        self.temperature_text: LiveReadings[str] = LiveReadings()  # (the Line page's, in its words)
         self._task: asyncio.Task[None] | None = None
         self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
 
@@ -136,6 +138,8 @@ class LiveView:
             sid = self.ids[k % len(self.ids)]
             k += 1
             frame = self.stream.latest
+            if frame is not None:
+                self._follow(frame)
             if frame is None or sid in frame.unanswered:
                 continue  # a dead ID costs a full timeout per read: the stream probes it
             with contextlib.suppress(IcsError):
@@ -143,6 +147,11 @@ class LiveView:
                 self.temperature[sid] = health["temperature_c"]
                 self.temperature_text[sid] = health["temperature_text"]
                 self.current[sid] = health["current"]
+
+    def _follow(self, frame: Frame) -> None:
+        """Drop the readings of the servos ``frame`` has offline."""
+        for readings in (self.current, self.temperature, self.temperature_text):
+            readings.follow(frame)
 
     def position(self, servo_id: int) -> int:
         frame = self.stream.latest
@@ -153,6 +162,7 @@ class LiveView:
         frame = self.stream.latest
         if frame is None:
             return None
+        self._follow(frame)
         # The rate over the last second, from the frames themselves: Stream.stats sorts and takes the
         # deviation of its whole history, too much to do 25 times a second next to a streaming line.
         marks = self._marks
