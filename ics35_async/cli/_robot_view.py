@@ -88,7 +88,6 @@ def joint_table(
         )
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
-    unreached = robot.unreached
     uncommanded = robot.uncommanded  # ("-" for their target: only read, or offline; the Robot page's rule too)
     gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
     for name in joints or list(robot.joints):
@@ -96,7 +95,6 @@ def joint_table(
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
-        silent = name in unreached  # (its servo offline: no target of its own now; robot.telemetry has no reading)
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
