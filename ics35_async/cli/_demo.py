@@ -45,25 +45,15 @@ from ._signals import stop_name
 from ._telemetry import Telemetry
 
 
-def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) -> TargetFunction:
-    """A travelling sine wave across the servos, blended in from where each one starts."""
+def wave(ids: Sequence[int], amplitude: float, frequency: float) -> TargetFunction:
+    """A travelling sine wave across the servos (each joins it from where it stands: see BlendIn)."""
     n = len(ids)
-    start: dict[int, int] = {}
 
     def targets(t: float, frame: Frame) -> dict[int, int]:
-        for sid in ids:
-            if sid not in start and sid in frame.positions:
-                # Start from where the servo is, clamped into the safe range, so nothing jumps.
-                start[sid] = min(max(frame.positions[sid], units.TRAVEL_MIN), units.TRAVEL_MAX)
-        s = 1.0 if ramp <= 0 else min(1.0, t / ramp)
-        s = s * s * (3 - 2 * s)  # smoothstep: no jerk at either end of the blend
-        wanted = {}
-        for k, sid in enumerate(ids):
-            deg = amplitude * math.sin(2 * math.pi * (frequency * t - k / n))
-            goal = units.degrees_to_position(deg)
-            begin = start.get(sid, units.NEUTRAL)
-            wanted[sid] = round(begin + (goal - begin) * s)
-        return wanted
+        return {
+            sid: units.degrees_to_position(amplitude * math.sin(2 * math.pi * (frequency * t - k / n)))
+            for k, sid in enumerate(ids)
+        }
 
     return targets
 
@@ -172,7 +162,7 @@ def demo(
             started.append(state)
             # The silent IDs start out of the stream's cycle, probed as any servo that stops answering.
             plan = StreamPlan(free=list(chosen), silent=silent)
-            targets = wave(chosen, swing, frequency, ramp=1.5)
+            targets = wave(chosen, swing, frequency)
             return await run_live(settings, bus, chosen, state, options, targets, plan)
 
     try:

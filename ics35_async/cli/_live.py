@@ -24,7 +24,7 @@ from ..bus import Bus
 from ..engine import State
 from ..errors import BusClosed, ClosedByPortLoss, IcsError, PortLost
 from ..frames import Frame
-from ..policies import ALL_IDS, StreamPlan
+from ..policies import ALL_IDS, BlendIn, StreamPlan
 from ..stream import Stream, StreamOptions
 from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
@@ -71,6 +71,9 @@ class LiveOptions:
     free_at_end: bool = True  # every streamed servo goes free at the end (not when they are only watched)
     # A lost port waited for, the bus reconnecting (monitor --reconnect); None: the command has no --reconnect.
     reconnect: bool | None = None
+    # Seconds over which a servo's target goes from where it stands into the targets (demo's wave): as the command
+    # starts, and when a servo comes back (see BlendIn).
+    blend_seconds: float = 1.5
 
 
 async def run_live(
@@ -94,6 +97,9 @@ async def run_live(
     # A watched servo is never freed: on_close="free" would free every ID, so the end frees the others itself.
     planned["on_close"] = "free" if options.free_at_end and not watch else "hold"
     stream = bus.stream(ids, rate_hz=options.rate_hz, **planned)
+    # Each servo joins the targets from where it stands: at the start, and back from offline (it may have restarted
+    # and been turned elsewhere: the targets' own would throw it across its range).
+    blend = BlendIn(stream, options.blend_seconds)
     state.rate_asked = options.rate_hz
     telemetry = Telemetry(bus, state.ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
@@ -172,9 +178,8 @@ async def run_live(
                                 elapsed = now - start
                                 state.update(frame, elapsed, stream)
                                 if targets is not None:
-                                    wanted = targets(elapsed, frame)
-                                    stream.set_targets(wanted)
-                                    state.targets.update(wanted)
+                                    state.targets.update(blend.set_targets(targets(elapsed, frame), frame))
+                                    state.note_comebacks(blend.joining, elapsed)
                                 telemetry.after_frame(frame)
                                 if options.plot:
                                     recorder.add(elapsed, frame)

@@ -13,6 +13,7 @@ from rich.text import Text
 
 from .. import units
 from ..frames import Frame
+from ..policies import Joining
 from ..stream import Stream
 from ._console import TitleInParts, current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
@@ -21,6 +22,9 @@ from ._telemetry import Telemetry
 # servos): the raw position (its angle stays), then the telemetry (a servo's trouble shows in its err), then
 # demo's target.  The ID, its angle and its errors stay.
 LEAVE_OUT = ("pos", "cur", "temp", "target°")
+# Seconds a servo's coming back stays in the status line once it is back in the targets: a log prints a line a
+# second, and a blend shorter than that would pass unsaid.
+COMEBACK_SHOWN = 3.0
 
 
 @dataclass
@@ -48,6 +52,8 @@ class LiveState:
     lost_at: float | None = None  # seconds in when the port was found lost, while it is (the bus reconnecting)
     reconnects: int = 0  # times the port came back
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
+    # Servos that came back (from offline, or their lost port), what the status line says of each, and until when.
+    comebacks: dict[int, tuple[str, float]] = field(default_factory=dict)
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
         self.lost_at = None  # (a frame is a cycle run: the port is there)
@@ -62,6 +68,19 @@ class LiveState:
             self.window.popleft()
         (t0, c0), (t1, c1) = self.window[0], self.window[-1]
         self.rate_now = (c1 - c0) / (t1 - t0) if t1 > t0 else 0.0
+
+    def note_comebacks(self, joining: dict[int, Joining], elapsed: float) -> None:
+        """Say of each servo of ``joining`` that came back what is done with it: read where it stands (the free
+        command), then brought from there into the wave (see BlendIn), not thrown to the wave's target."""
+        for sid, join in joining.items():
+            if not join.came_back:
+                continue
+            if join.position is None:
+                doing = "reading where it stands (free)"
+            else:
+                degrees = signed_tenths(units.position_to_degrees(join.position))
+                doing = f"rejoining the wave from {join.position} ({degrees}°)"
+            self.comebacks[sid] = (f"servo {sid} came back: {doing}", elapsed + COMEBACK_SHOWN)
 
     def port_lost(self, elapsed: float, telemetry: Telemetry) -> None:
         """The port is lost, the bus reconnecting (``--reconnect``): nothing read before says where the servos are
@@ -95,9 +114,10 @@ class LiveState:
         asked = f" of {self.rate_asked:g}" if self.rate_asked is not None else ""
         # (the port's comings back, counted, so that a loose cable is seen also once it no longer is)
         back = f"  reconnects {self.reconnects}" if self.reconnects else ""
+        news = "".join(f"  {said}" for said, until in self.comebacks.values() if until >= self.elapsed)
         return (
             f"{head}  rate {self.rate_now:5.1f}{asked} Hz (avg {self.rate_avg:5.1f})  "
-            f"answering {answering}/{len(self.ids)}  errors {errors}{back}"
+            f"answering {answering}/{len(self.ids)}  errors {errors}{back}{news}"
         )
 
     def table(self, telemetry: Telemetry, with_targets: bool) -> Table:

@@ -1,5 +1,6 @@
 """The line's policies: finding servos, telling why one did not answer, renumbering the only one, changing an
-EEPROM safely, reading positions without freeing what may not go limp, freeing every servo there.
+EEPROM safely, reading positions without freeing what may not go limp, freeing every servo there, bringing a
+servo into a loop's targets from where it stands.
 
 They need no bus, only a line's small protocol (:class:`ics35_async.line.Line`, which the bus
 offers), so library users get the same rules the ``ics35`` command follows.
@@ -7,6 +8,7 @@ offers), so library users get the same rules the ``ics35`` command follows.
 
 from __future__ import annotations
 
+from .blend_in import BlendIn, Joining
 from .eeprom_write import (
     POWER_UP_PARAMS,
     EepromPlan,
@@ -61,6 +63,7 @@ __all__ = [
     "answers_short_read",
     "ALL_BAUDS",
     "ALL_IDS",
+    "BlendIn",
     "NO_READ_ICS35",
     "POWER_UP_PARAMS",
     "EepromPlan",
@@ -69,6 +72,7 @@ __all__ = [
     "FreeReport",
     "IdChange",
     "IdSurvey",
+    "Joining",
     "Line",
     "LineOpener",
     "NoReply",
