@@ -76,6 +76,33 @@ def test_demo_brings_a_servo_that_restarted_elsewhere_back_into_the_wave_from_wh
     assert any("servo 3 came back" in line and f"from {TURNED_TO}" in line for line in summaries), result.out
 
 
+def test_demo_brings_a_servo_plugged_in_once_the_wave_runs_in_from_where_it_stands(cli: Any, sim_line: Any) -> None:
+    # ID 3, silent as demo asked it, started out of the stream's cycle; plugged in once the wave ran, it answered
+    # its probe and was thrown to the wave's target.
+    sim, url = sim_line([1, 2], realtime=True)
+    ended = threading.Event()
+    marks: dict[str, int] = {}
+
+    def plug_in_late() -> None:
+        while not ended.is_set() and sum(t.servo_id == 1 and t.command == "position" for t in sim.log_since(0)) < 100:
+            time.sleep(0.01)
+        marks["in"] = sim.transactions
+        sim.add_device(VirtualServo(3, position=TURNED_TO))
+
+    plugging = threading.Thread(target=plug_in_late)
+    plugging.start()
+    try:
+        result = cli("--port", url, "--timeout", "0.02", "demo", "--ids", "1-3", "--seconds", "5")
+    finally:
+        ended.set()
+        plugging.join()
+    assert result.code == 0, result.err
+    assert "in" in marks, "servo 3 was never plugged in"
+    targets = [p for p in commanded(sim, 3, marks["in"]) if p != FREE]
+    assert targets and abs(targets[0] - TURNED_TO) < 100, targets[:10]
+    assert max(abs(b - a) for a, b in itertools.pairwise(targets)) < 400, targets
+
+
 GOAL = 7500
 
 
