@@ -94,7 +94,8 @@ def demo(
     """A smooth wave streamed to every servo, with a live table; leaves the servos free.
 
     Every servo goes limp for the first cycle (where it stands is read with the free command) and at the
-    end: servos on the desk, or a robot held up, not one standing on them.
+    end: servos on the desk, or a robot held up, not one standing on them.  A servo that stops answering and
+    comes back (it may have restarted elsewhere) is read so too, and joins the wave from where it stands.
 
     \b
     No hardware:   ics35 demo                      (built-in simulator, 32 servos)
