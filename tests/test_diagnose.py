@@ -14,7 +14,7 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
-from ics35_async.diagnose.system import check_system, holders
+from ics35_async.diagnose.system import check_system, holders, is_pseudo_terminal
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo
 from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION
@@ -679,3 +679,17 @@ def test_doctor_and_ports_on_a_pseudo_terminal_say_so_and_give_no_adapter_advice
         notes = cli("--port", port, "ports", "--json").json()["notes"]
         assert any("pseudo-terminal" in note for note in notes), notes
         assert not [n for n in notes if any(w in n for w in ADAPTER_WORDS)], notes
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a pty's name: Linux's /dev/pts")
+def test_a_relative_link_to_a_pseudo_terminal_is_one(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # `--port ./sim-link` (a link in the working directory) was resolved below / and given the adapter's advice.
+    master, slave = os.openpty()
+    try:
+        (tmp_path / "sim-link").symlink_to(os.ttyname(slave))
+        monkeypatch.chdir(tmp_path)
+        assert is_pseudo_terminal("sim-link") and is_pseudo_terminal("./sim-link")
+        assert not is_pseudo_terminal("nothing-here")
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -93,7 +93,10 @@ def is_pseudo_terminal(port: str | None, root: str | Path = "/") -> bool:
     by its resolved name, without opening it."""
     if not port or is_url(port):
         return False
-    real = Path(os.path.realpath(_below(Path(root), port)))
+    path = Path(port)
+    if not path.is_absolute():  # (a link in the working directory: ./sim-link)
+        path = Path.cwd() / path
+    real = Path(os.path.realpath(_below(Path(root), str(path))))
     try:
         inside = real.relative_to(os.path.realpath(root))
     except ValueError:
