@@ -193,7 +193,7 @@ class ChaosWorkload:
             # read them: their log entries come once it has (finish looks for them), so wait for a quiet log.
             seen, quiet_since = sim.transactions, loop.time()
             give_up = quiet_since + 5
-            while loop.time() - quiet_since < 0.05 and loop.time() < give_up:
+            while loop.time() - quiet_since < 0.2 and loop.time() < give_up:
                 await asyncio.sleep(0.005)
                 if sim.transactions != seen:
                     seen, quiet_since = sim.transactions, loop.time()

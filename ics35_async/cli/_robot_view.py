@@ -89,10 +89,11 @@ def joint_table(
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
     uncommanded = robot.uncommanded  # ("-" for their target: only read, or offline; the Robot page's rule too)
+    readings = robot.telemetry  # (made afresh at each read: once a drawing)
     gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
     for name in joints or list(robot.joints):
         spec = robot.joints[name]
-        seen = robot.telemetry.get(name)
+        seen = readings.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
         if spec.line in gone:

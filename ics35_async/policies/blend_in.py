@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from .. import protocol, units
+from ..errors import InvalidArgument
 
 if TYPE_CHECKING:
     from ..frames import Frame
@@ -51,10 +52,16 @@ class BlendIn:
     until the next call reads it.
 
     Raises:
-        InvalidArgument: ``seconds`` is not 0..3600.
+        InvalidArgument: ``seconds`` is not 0..3600, or ``stream`` frees a servo that comes back
+            (``on_resume="free"``): it holds none, so nothing would tell that servo from one that never left.
     """
 
     def __init__(self, stream: Stream, seconds: float) -> None:
+        if stream.on_resume != "wait":
+            raise InvalidArgument(
+                f"BlendIn needs a stream with on_resume='wait', not {stream.on_resume!r}: a stream that frees a servo"
+                " that comes back holds none, and the loop's next target would throw it from where it restarted"
+            )
         self.stream = stream
         self.seconds = float(units.check_seconds("seconds", seconds, 0.0, 3600))
         self._joining: dict[int, Joining] = {}
