@@ -7,6 +7,7 @@ import asyncio
 import itertools
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -47,6 +48,18 @@ def drop_restart_and_come_back(sim: VirtualLine, servo_id: int, ended: threading
 SLOW_WAVE = ("--frequency", "0.1")
 
 
+def demo_beside(cli: Any, url: str, seconds: str, servos: Callable[[threading.Event], None]) -> Any:
+    """``ics35 demo`` on IDs 1-3 at ``url`` for ``seconds``, ``servos`` run beside it in a thread until it ends."""
+    ended = threading.Event()
+    beside = threading.Thread(target=servos, args=(ended,))
+    beside.start()
+    try:
+        return cli("--port", url, "--timeout", "0.02", "demo", "--ids", "1-3", "--seconds", seconds, *SLOW_WAVE)
+    finally:
+        ended.set()
+        beside.join()
+
+
 def test_demo_brings_a_servo_that_restarted_elsewhere_back_into_the_wave_from_where_it_stands(
     cli: Any, sim_line: Any
 ) -> None:
@@ -55,15 +68,8 @@ def test_demo_brings_a_servo_that_restarted_elsewhere_back_into_the_wave_from_wh
     # 7500): a jump across its range at full speed.  It is read where it stands (the free command) and blended
     # from there into the wave.
     sim, url = sim_line([1, 2, 3], realtime=True)
-    ended = threading.Event()
     marks: dict[str, int] = {}
-    comeback = threading.Thread(target=drop_restart_and_come_back, args=(sim, 3, ended, marks))
-    comeback.start()
-    try:
-        result = cli("--port", url, "--timeout", "0.02", "demo", "--ids", "1-3", "--seconds", "8", *SLOW_WAVE)
-    finally:
-        ended.set()
-        comeback.join()
+    result = demo_beside(cli, url, "8", lambda ended: drop_restart_and_come_back(sim, 3, ended, marks))
     assert result.code == 0, result.err
     assert "back" in marks, "servo 3 never came back"
     after = list(commanded(sim, 3, marks["back"]))
@@ -84,22 +90,15 @@ def test_demo_brings_a_servo_plugged_in_once_the_wave_runs_in_from_where_it_stan
     # ID 3, silent as demo asked it, started out of the stream's cycle; plugged in once the wave ran, it answered
     # its probe and was thrown to the wave's target.
     sim, url = sim_line([1, 2], realtime=True)
-    ended = threading.Event()
     marks: dict[str, int] = {}
 
-    def plug_in_late() -> None:
+    def plug_in_late(ended: threading.Event) -> None:
         while not ended.is_set() and sum(t.servo_id == 1 and t.command == "position" for t in sim.log_since(0)) < 100:
             time.sleep(0.01)
         marks["in"] = sim.transactions
         sim.add_device(VirtualServo(3, position=TURNED_TO))
 
-    plugging = threading.Thread(target=plug_in_late)
-    plugging.start()
-    try:
-        result = cli("--port", url, "--timeout", "0.02", "demo", "--ids", "1-3", "--seconds", "5", *SLOW_WAVE)
-    finally:
-        ended.set()
-        plugging.join()
+    result = demo_beside(cli, url, "5", plug_in_late)
     assert result.code == 0, result.err
     assert "in" in marks, "servo 3 was never plugged in"
     targets = [p for p in commanded(sim, 3, marks["in"]) if p != FREE]
