@@ -3,15 +3,19 @@ words, each further line under the text; into a pipe they stay one line each, as
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.cli._errors import NO_REPLY_HINTS
 from ics35_async.cli._runner import SIMULATOR_NOTE
+from ics35_async.policies.eeprom_backup import backup_document, backups_document
+from ics35_async.sim import VirtualServo
 from tests.support.terminal import screen_of, typed_on_a_terminal
 
 pytestmark = [
@@ -88,3 +92,17 @@ def test_a_note_wraps_at_words_under_its_text() -> None:
     screen = screen_of(written, width=50)
     assert code == 0, screen
     assert said(screen, "note:") == [SIMULATOR_NOTE.removeprefix("note: ")], screen
+
+
+def test_a_restores_note_wraps_at_words_under_its_text(tmp_path: Path) -> None:
+    # A restore's note of a servo the file holds no backup of was printed whole, cut by the terminal mid-word.
+    backup = tmp_path / "servos.json"
+    saved = [backup_document(VirtualServo(1).eeprom, 1, baud=115200, port="/dev/ttyUSB0")]
+    backup.write_text(json.dumps(backups_document(saved, {5: "no reply at 115,200 baud"})))
+    args = ["--port", "sim://?ids=1", "eeprom", "restore", str(backup), "--yes"]
+    code, written = typed_on_a_terminal(args, [], columns=40)
+    screen = screen_of(written, width=40)
+    assert code == 0, screen
+    assert all(len(line) <= 40 for line in screen), screen
+    (note,) = [line for line in said(screen, "note:") if "holds no backup" in line]
+    assert note.endswith("holds no backup of servo 5 (when it was saved: no reply at 115,200 baud)"), screen

@@ -320,9 +320,10 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
         raise click.BadParameter(f"{source}: the file holds no servo's backup{when}", param_hint="FILE")
     if target is None:
         for why, ids in not_saved_by_words(held).items():
-            err.print(
-                f"note: {escape(source)} holds no backup of servo{'s' if len(ids) > 1 else ''} {id_ranges(ids)} "
-                f"(when it was saved: {escape(why)})"
+            say_labelled(
+                "[yellow]note:[/yellow]",
+                f"{escape(source)} holds no backup of servo{'s' if len(ids) > 1 else ''} {id_ranges(ids)} "
+                f"(when it was saved: {escape(why)})",
             )
     return backups
 
@@ -444,9 +445,10 @@ def restore(
         )
     for backup in backups:
         if backup.saved_id != backup.target and not restore_id and not as_json:
-            err.print(
-                f"note: {escape(backup.source)} is a backup of ID {backup.saved_id}; servo {backup.target} keeps "
-                "its ID (--restore-id to write it)"
+            say_labelled(
+                "[yellow]note:[/yellow]",
+                f"{escape(backup.source)} is a backup of ID {backup.saved_id}; servo {backup.target} keeps "
+                "its ID (--restore-id to write it)",
             )
 
     reading = False  # the servos are being read (the line opened): a failure then comes before any write

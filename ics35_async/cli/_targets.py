@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import math
 
+from rich.markup import escape
+
 from .. import protocol, units
 from ..errors import InvalidArgument, MalformedEeprom, ReplyDataError
 from ..servo import Servo, check_pulse_limits
-from ._console import err
+from ._console import say_labelled
 from ._settings import CliError, ExitCode, Settings
 
 FORCE_HINT = "to send it anyway (the servo may run into its end stop), add --force"
@@ -53,7 +55,10 @@ async def refuse_outside_pulse_limits(servo: Servo, target: int) -> None:
     try:
         image = await servo.read_eeprom()
     except (ReplyDataError, MalformedEeprom) as exc:
-        err.print(f"note: servo {servo.id}'s EEPROM is unreadable ({exc}); its pulse limits are taken as 3500..11500")
+        say_labelled(
+            "[yellow]note:[/yellow]",
+            escape(f"servo {servo.id}'s EEPROM is unreadable ({exc}); its pulse limits are taken as 3500..11500"),
+        )
         return
     try:
         check_pulse_limits(servo.id, target, image.pulse_limit_low, image.pulse_limit_high)
