@@ -398,7 +398,7 @@ def scan_progress(bauds: Sequence[int], ids: int, *, show: bool = True) -> Itera
     try:
         yield ScanSteps(progress, bauds, ids)
     finally:
-        if progress.live.is_started:  # (never drawn: the port did not open)
+        if progress.live.is_started:  # (a bar never drawn, the port not opened, has nothing to stop)
             progress.stop()
 
 

@@ -105,6 +105,7 @@ class BlendIn:
         if goal == protocol.FREE:  # (freed by the loop: targeted again, it is read and blended in again)
             self._joined.discard(sid)
             self._joining.pop(sid, None)
+            self._read_after.pop(sid, None)  # (targeted again, it is read afresh: a reading after this frame's)
             return protocol.FREE
         if sid in self._joined:
             return goal

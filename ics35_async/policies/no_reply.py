@@ -75,8 +75,7 @@ class NoReply:
         a person not to take them for rates the servo does not answer at; None when there are none."""
         if not self.not_searched:
             return None
-        *first, last = (str(rate) for rate in self.not_searched)
-        return f"{', '.join(first) + ' and ' if first else ''}{last} baud could not be tried"
+        return f"{rates_in_words(self.not_searched, 'and')} baud could not be tried"
 
 
 async def why_no_reply(

@@ -494,10 +494,11 @@ class RateSearch:
         return f"nor any device at {rates_in_words(self.tried)} baud"
 
 
-def rates_in_words(rates: Sequence[int]) -> str:
-    """``rates`` as a sentence names them: ``625000 or 1250000``, ``115200, 625000 or 1250000``."""
-    *first, last = (str(rate) for rate in rates)
-    return f"{', '.join(first) + ' or ' if first else ''}{last}"
+def rates_in_words(rates: Sequence[int], joined_by: str = "or", *, grouped: bool = False) -> str:
+    """``rates`` as a sentence names them: ``625000 or 1250000``, ``115200, 625000 or 1250000`` (``joined_by``:
+    the word before the last, "or" or "and"; ``grouped``: thousands set apart, ``625,000``, as a page writes them)."""
+    *first, last = (f"{rate:,}" if grouped else str(rate) for rate in rates)
+    return f"{', '.join(first) + f' {joined_by} ' if first else ''}{last}"
 
 
 async def search_other_rates(

@@ -75,6 +75,7 @@ from ..policies.eeprom_backup import (
     port_lost_why,
     read_failed_why,
 )
+from ..policies.scan import rates_in_words
 from ..protocol import Param
 from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
@@ -164,12 +165,6 @@ def _how_far(report: ServoWriteReport | None) -> dict[str, bool]:
     if report.outcome is WriteOutcome.UNVERIFIED:
         return {"written": True}
     return {}
-
-
-def _rates_said(rates: tuple[int, ...], last_joined_by: str) -> str:
-    """``rates`` as the page's sentences name them: ``625,000 and 1,250,000`` (``last_joined_by``: "and", "or")."""
-    *first, last = (f"{rate:,}" for rate in rates)
-    return f"{', '.join(first) + f' {last_joined_by} ' if first else ''}{last}"
 
 
 class LineSession:
@@ -717,8 +712,8 @@ class LineSession:
             return f"ID {sid} did not answer at {baud} baud; {not_tried}; else {checks}"
         if finding.not_searched:
             # (not "at no other baud rate": a rate the search could not ask, the port lost there, said apart)
-            nor = f", nor at {_rates_said(finding.searched, 'or')} baud" if finding.searched else ""
-            untried = f"{_rates_said(finding.not_searched, 'and')} baud could not be tried"
+            nor = f", nor at {rates_in_words(finding.searched, grouped=True)} baud" if finding.searched else ""
+            untried = f"{rates_in_words(finding.not_searched, 'and', grouped=True)} baud could not be tried"
             return f"ID {sid} did not answer on {port} at {baud} baud{nor} ({untried}): {checks}"
         if looked_before:
             return (
