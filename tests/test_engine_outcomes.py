@@ -31,6 +31,7 @@ TX = CMD.tx
 REPLY = CMD.encode_reply(42)
 BAD_ECHO = bytes([TX[0] ^ 0x01]) + TX[1:]
 LATE = -1.0  # stands for "just after the deadline"
+LATE_AHEAD = bytes.fromhex("81 00 00 01 3a 4c")  # a free command to ID 1, its echo and reply
 
 COUNTER = {
     ReplyTimeout: "timeouts",
@@ -53,6 +54,8 @@ ECHO_TABLE: list[tuple[str, list[tuple[float, bytes]], Any]] = [
     ("wrong echo, at the deadline", [(0.0002, BAD_ECHO)], EchoMismatch),
     ("wrong echo byte 2, at the deadline", [(0.0002, TX[:1] + b"\x7f")], EchoMismatch),
     ("an extra byte", [(0.001, TX + REPLY + b"\x00")], BadReply),
+    # An earlier command's late echo and reply, read in one chunk with this one's (as a pty delivers them).
+    ("a late reply ahead, one chunk", [(0.001, LATE_AHEAD + TX + REPLY)], EchoMismatch),
     ("wrong header", [(0.001, TX + bytes([REPLY[0] ^ 1]) + REPLY[1:])], ReplyHeaderError),
     ("wrong sub-command", [(0.001, TX + REPLY[:1] + b"\x01" + REPLY[2:])], ReplySubcommandError),
     ("value byte with its MSB set", [(0.001, TX + REPLY[:2] + b"\x85")], ReplyDataError),
@@ -123,6 +126,17 @@ def test_outcome_with_echo(name: str, events: list[tuple[float, bytes]], expecte
 def test_outcome_without_echo(name: str, events: list[tuple[float, bytes]], expected: Any) -> None:
     req, wire = play(False, events)
     check(req, wire, events, expected)
+
+
+def test_a_late_reply_read_in_one_chunk_with_the_echo_is_named_as_late_not_as_extra_bytes() -> None:
+    # A stream's transaction given up on at its deadline answered after the resync's flush, just as the next command
+    # went: its six bytes and the next command's echo and reply came in one read.  "Extra bytes after the reply" sent
+    # a reader to baud rates and shared IDs; the echo is there, behind a late reply: a slow servo or link.
+    events = [(0.001, LATE_AHEAD + TX + REPLY)]
+    req, _ = play(True, events)
+    assert isinstance(req.error, EchoMismatch), req.error
+    assert req.error.echo_at == len(LATE_AHEAD) and req.error.echo_behind
+    assert "ahead of the echo" in str(req.error)
 
 
 def test_no_echo_at_all_names_an_adapter_that_holds_bytes_back_as_well_as_one_not_connected() -> None:

@@ -122,7 +122,10 @@ async def test_the_drivers_on_a_tty_judge_their_deadlines_on_it(
     # up on, a paced stream's slot) came up to a millisecond late, as the event loops' timers do.
     path = pty_sim("--ids", "1").path
     before = open_descriptors()
-    async with open_bus(path, driver=driver, **FAST) as bus:
+    # (A retry: on a loaded machine the simulator's process can answer a stream's command after its deadline and
+    # the resync's quiet time, so the late reply lands ahead of the next read's echo, a typed error that a retry
+    # after the resync recovers from; the test is about deadlines, not about the simulator's punctuality.)
+    async with open_bus(path, driver=driver, retries=1, **FAST) as bus:
         assert bus.describe()["fine_deadlines"] is fine
         with pytest.raises(ReplyTimeout):  # no servo at ID 2: its reply given up on at the deadline
             await bus.servo(2).read_temperature()

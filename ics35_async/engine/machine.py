@@ -824,7 +824,7 @@ class LineEngine:
         echo_len = self._echo_len
         if len(buf) != self._expect or (echo_len and not buf.startswith(tx)) or self._corrupted:
             counters.latency.add(latency)
-            error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
+            error = framing_error(self._current, sid, tx, buf, echo_len, self._expect, self._corrupted)
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)

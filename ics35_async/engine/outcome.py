@@ -33,11 +33,17 @@ def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearr
     return _error(EchoMismatch, message, req, sid, buf, echo_at=ahead)
 
 
-def framing_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, expect: int, corrupted: bool) -> ReplyError:
-    """All bytes are in but the transaction is wrong: a damaged byte, extra bytes, or a wrong echo."""
+def framing_error(
+    req: Request | None, sid: int, tx: bytes, buf: bytearray, echo_len: int, expect: int, corrupted: bool
+) -> ReplyError:
+    """All bytes are in but the transaction is wrong: a damaged byte, a wrong echo, or extra bytes."""
     if corrupted:
         message = "a byte arrived with a parity or framing error (noise on the line?)"
         return _error(ReplyDataError, message, req, sid, buf)
+    if echo_len and not buf.startswith(tx):
+        # (Before counting bytes: a late reply read in one chunk with this echo and reply makes more bytes than
+        # expected, and it is the late reply, not extra bytes after this one, that a reader must be told of.)
+        return echo_mismatch(req, sid, tx, buf)
     if len(buf) > expect:
         extra = len(buf) - expect
         if req is not None and req.command.servo_id is None:  # the ID command: every device answers it
