@@ -8,9 +8,9 @@ The rules, each in one place:
 * one transaction at a time: write, consume the echo (when the line echoes),
   read exactly the reply length of that command, validate it;
 * outcome: a reply that does not arrive by the deadline is a timeout, a
-  partial reply, or an echo mismatch, by what did arrive; extra bytes, a
-  wrong echo, a byte with a parity error or a reply the codec rejects fail
-  it too;
+  partial reply, or an echo mismatch, by what did arrive; a wrong echo
+  (judged first: bytes ahead of it are a late reply), extra bytes, a byte
+  with a parity error or a reply the codec rejects fail it too;
 * resync: after any fault, wait until the line has been quiet for
   ``quiet_time`` (at most ``max_resync``; less after a probe's or the
   stream's short wait), so the late bytes of a failed

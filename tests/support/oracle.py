@@ -101,24 +101,23 @@ class WirePredictor:
         return verdict
 
     def judge(self, tx: bytes, received: bytes) -> Verdict:
-        """The bus's rules, as documented: exact length, echo first, then the codec's checks."""
+        """The bus's rules, as documented: the echo first (bytes ahead of it or in its place), then the exact
+        length, then the codec's checks."""
         command = _decode(tx, self.baudrate)
         echo_len = len(tx) if self.echo else 0
         expected = echo_len + command.reply_len
         n = len(received)
+        m = min(n, echo_len)
+        if received[:m] != tx[:m]:
+            return Verdict(False, None, "EchoMismatch", received)
         if n > expected:
             return Verdict(False, None, "BadReply", received)
         if n == expected:
-            if received[:echo_len] != tx[:echo_len]:
-                return Verdict(False, None, "EchoMismatch", received)
             try:
                 value = command.parse(received[echo_len:])
             except ReplyError as exc:
                 return Verdict(False, None, type(exc).__name__, received)
             return Verdict(True, value, None, received)
-        m = min(n, echo_len)
-        if received[:m] != tx[:m]:
-            return Verdict(False, None, "EchoMismatch", received)
         if n <= echo_len:
             return Verdict(False, None, "ReplyTimeout", received)
         return Verdict(False, None, "PartialReply", received)
