@@ -126,21 +126,62 @@ class Frame:
 V = TypeVar("V")
 
 
+STALE_AFTER_FAILED_READS = 2
+"""The rule of every live view for a reading that is no longer read: a servo's reading (its temperature, its
+current) is shown until this many reads of it in a row have failed, and "-" from then until one answers.
+
+Counted in failed reads, not in seconds: each view reads its servos at its own pace (``ics35 monitor`` a few
+servos a cycle, the configurator's Live page one servo every 0.1 s, a robot's safety watch a few joints a cycle),
+so a round of 32 servos at 115200 baud can take seconds, and a reading a round old is that view's newest; two failed
+reads are two rounds in which the servo was asked and did not answer, however long that view's rounds are.  Not
+at the first: an ICS reply carries no checksum, and one reply lost or garbled on a noisy line says nothing of the
+servo (a temperature blinking to "-" at each would teach its reader to overlook the "-").  At the second in a row
+the reads are failing (a servo that answers its position commands but not these reads, a loose data line that
+drops some replies), and what was read before them is no longer the servo's now: a motor heats by tens of degrees
+in a minute of stalling.  So a reading shown is the servo's newest answer, followed by one failed read at most.
+A servo the stream has taken offline, or on a lost port, shows none at once
+(:meth:`LiveReadings.follow`, :meth:`LiveReadings.forget`)."""
+
+
 class LiveReadings(dict[int, V]):
     """The newest reading of each of a stream's servos taken between its cycles (a current, a temperature), by ID,
     kept only while it is the servo's own now: :meth:`follow` drops those of the servos a frame has offline,
-    :meth:`forget` those of every servo (the port lost).  A servo back from either has none until it is read
-    anew: it may have restarted, hotter or cooler.  (A robot's joints follow the same rule: ``Robot.telemetry``.)
-    A view of the stream shows "-" for a servo with none: the monitor's table, the configurator's live plots."""
+    :meth:`forget` those of every servo (the port lost), and :meth:`read_failed` one whose reads have failed
+    :data:`STALE_AFTER_FAILED_READS` times in a row (its servo may answer its position commands still, but not
+    these reads: what was read before is not what the servo is now).  A servo back from any of them has none until
+    it is read anew: it may have restarted, hotter or cooler.  (A robot's joints follow the same rules:
+    ``Robot.telemetry``.)  A view of the stream shows "-" for a servo with none: ``ics35 monitor``'s and ``demo``'s
+    tables and JSON lines, the configurator's Live plots and Line page.
+
+    A reader stores what it read (``readings[servo_id] = value``, which also counts the servo's failed reads from
+    zero again) and tells each read that failed (:meth:`read_failed`); a view shows what is in it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._failed: dict[int, int] = {}  # failed reads in a row since each servo's newest reading
+
+    def __setitem__(self, servo_id: int, value: V) -> None:
+        super().__setitem__(servo_id, value)
+        self._failed.pop(servo_id, None)
+
+    def read_failed(self, servo_id: int) -> None:
+        """A read of ``servo_id`` failed (no reply, a garbled one): at the :data:`STALE_AFTER_FAILED_READS`-th in a
+        row, its reading is dropped until one answers."""
+        failed = self._failed.get(servo_id, 0) + 1
+        self._failed[servo_id] = failed
+        if failed >= STALE_AFTER_FAILED_READS:
+            self.pop(servo_id, None)
 
     def follow(self, frame: Frame) -> None:
         """Drop the readings of the servos ``frame`` has offline."""
         for servo_id in frame.offline:
             self.pop(servo_id, None)
+            self._failed.pop(servo_id, None)
 
     def forget(self) -> None:
         """Drop every reading (the port lost: none is a servo's now)."""
         self.clear()
+        self._failed.clear()
 
 
 @dataclass

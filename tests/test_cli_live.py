@@ -24,7 +24,7 @@ from ics35_async.cli._telemetry import Telemetry
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw, FaultInjector
 from ics35_async.units import temperature_to_celsius
-from tests.support.sim_servos import UnplugsWhenAsked, free_command
+from tests.support.sim_servos import TelemetryGoesSilent, UnplugsWhenAsked, free_command
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import scaled
 
@@ -362,6 +362,37 @@ def test_a_servo_gone_offline_has_no_readings_in_monitor_json(cli: Any, sim_line
     servos = json.loads(result.out.splitlines()[-1])["servos"]
     assert servos["3"]["offline"] is True, servos
     assert [servos["3"][k] for k in ("position", "current", "temperature")] == [None, None, None], servos
+
+
+def test_a_servo_whose_telemetry_reads_keep_failing_has_no_current_or_temperature_in_monitor_json(
+    cli: Any, sim_line: Any
+) -> None:
+    # Servo 2 answers its position every cycle, but its temperature and current reads went unanswered after the
+    # first: each JSON line went on giving the temperature and current read then, as if read that second.
+    silent = TelemetryGoesSilent(2, answered=2)
+    _, url = sim_line([VirtualServo(1), silent])
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "1-2", "--free", "--json", "--seconds", "1.5")
+    assert result.code == 0, result.err
+    assert silent.answered == 0 and silent.unanswered >= 2, silent.unanswered  # (read once, then failing)
+    servos = json.loads(result.out.splitlines()[-1])["servos"]
+    assert servos["2"]["offline"] is False and servos["2"]["position"] is not None, servos  # (still answering)
+    assert [servos["2"][k] for k in ("current", "temperature")] == [None, None], servos
+    assert servos["2"]["errors"] >= 2, servos  # (the failed reads counted)
+    assert servos["1"]["temperature"] is not None and servos["1"]["current"] is not None, servos
+
+
+def test_a_servo_whose_telemetry_reads_keep_failing_has_no_current_or_temperature_in_demos_table(
+    cli: Any, sim_line: Any
+) -> None:
+    silent = TelemetryGoesSilent(2, answered=2)
+    _, url = sim_line([VirtualServo(1), silent])
+    result = cli("--port", url, "--timeout", "0.005", "demo", "--ids", "1-2", "--seconds", "1.5")
+    assert result.code == 0, result.err
+    assert silent.answered == 0 and silent.unanswered >= 2, silent.unanswered
+    rows = {line.split()[0]: line.split() for line in result.out.splitlines() if line.split()[:1] in (["1"], ["2"])}
+    # (ID, target, angle, current, temperature, errors)
+    assert rows["2"][3:5] == ["-", "-"] and rows["2"][2] != "-", result.out
+    assert "-" not in rows["1"][3:5], result.out
 
 
 @pytest.mark.parametrize("command", [["monitor", "all", "--free"], ["demo", "--ids", "all"]], ids=["monitor", "demo"])

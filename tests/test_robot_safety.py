@@ -687,3 +687,30 @@ def test_a_joint_on_a_line_lost_for_good_has_no_temperature_or_current() -> None
     finally:
         rig.close()
     assert shown == [None, None], shown
+
+
+def test_a_joint_whose_telemetry_reads_keep_failing_has_no_temperature_or_current_while_it_answers() -> None:
+    # The knee's servo answered every position command, but its temperature and current reads went unanswered:
+    # Robot.telemetry went on giving the temperature and current read before, as if read now (a view of the robot
+    # showed a knee at 42 C that nothing had read for minutes).
+    rig = make_rig()
+    shown: list[float | int | None] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                rig.lower.servo(2).ignores = frozenset({"read_temperature", "read_current"})
+                errors = robot.telemetry["knee"].errors
+                await frames_until(robot, lambda: robot.telemetry["knee"].errors >= errors + 2)
+                assert "knee" not in robot.unreached and "knee" in robot.latest.positions  # (still answering)
+                shown.extend([robot.telemetry["knee"].temperature_c, robot.telemetry["knee"].current])
+                assert robot.telemetry["hip"].temperature_c is not None  # (the others read on)
+                rig.lower.servo(2).ignores = frozenset()
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)  # read again
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert shown == [None, None], shown

@@ -984,6 +984,50 @@ def test_the_live_plots_show_no_current_or_temperature_of_a_servo_gone_offline_u
     assert all(f["temperature"].get("3", 70) > 65 for f in back), back  # (never the 42 C from before)
 
 
+def test_the_live_plots_and_the_line_page_show_no_current_or_temperature_whose_reads_keep_failing(serve: Any) -> None:
+    # Servo 3 answered every cycle of the stream, but its temperature and current reads went unanswered: the plots
+    # (and the Line page's row) went on with the temperature and current read before, as if read at each frame.
+    client, sim = serve((1, 3), log_size=None)
+    post(client, "/api/scan")
+
+    def line_page_rows(done: Any) -> dict[int, dict[str, Any]]:
+        with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+            for _ in range(200):
+                rows = {s["id"]: s for s in ws.receive_json().get("servos", [])}
+                if rows and done(rows):
+                    return rows
+        raise AssertionError("no such rows")
+
+    # (the Line page's own reads, before the stream: what its rows showed once the stream ran)
+    line_page_rows(lambda rows: rows[3].get("temperature_c") is not None)
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
+    deadline = time.monotonic() + GUARD
+
+    def frame_when(done: Any) -> dict[str, Any]:
+        while time.monotonic() < deadline:
+            frame = client.get("/api/live").json()
+            if frame is not None and done(frame):
+                return frame  # type: ignore[no-any-return]
+            time.sleep(0.01)
+        raise AssertionError("no such frame")
+
+    def silent_reads() -> int:
+        return sum(1 for t in sim.log_since(0) if t.servo_id == 3 and t.command == "read_temperature" and not t.reply)
+
+    frame_when(lambda f: "3" in f["temperature"] and "3" in f["current"])
+    sim.servo(3).ignores = frozenset({"read_temperature", "read_current"})
+    frame_when(lambda f: silent_reads() >= 4)  # (two of its reads failed at least, with or without a retry each)
+    frames = [frame_when(lambda f: True) for _ in range(3)]
+    rows = line_page_rows(lambda rows: rows[1].get("position_note") == "from the live stream")
+    post(client, "/api/live/stop")
+    for frame in frames:
+        assert "3" in frame["positions"] and 3 not in frame["offline"], frame  # (still answering its cycles)
+        assert "3" not in frame["temperature"] and "3" not in frame["current"], frame
+        assert "1" in frame["temperature"], frame  # (the others read on)
+    assert rows[3].get("temperature_c") is None and rows[3].get("current") is None, rows[3]
+    assert rows[1]["temperature_c"] is not None, rows[1]
+
+
 def test_the_live_stream_is_paced_so_an_instant_line_does_not_take_the_servers_cpu(serve: Any) -> None:
     # The simulator answers at once: an unpaced stream would cycle thousands of times a second on one
     # core, for a page sent 25 updates a second.  The rate is taken from the frames' own times.

@@ -6,7 +6,8 @@ answering), is not read, since every read of a dead ID costs a full reply
 timeout and would slow every cycle (an ID where no servo is would cost the
 first cycles one a read until the stream marks it offline); the stream
 probes it, and telemetry resumes when it answers.  An ID whose telemetry reads alone
-keep failing is read only once per ``probe_interval`` until one answers.
+keep failing is read only once per ``probe_interval`` until one answers, and shows none meanwhile (the rule of
+``LiveReadings.read_failed``).
 """
 
 from __future__ import annotations
@@ -112,5 +113,6 @@ class Telemetry:
             elif isinstance(exc, ReplyError):
                 self.errors[sid] = self.errors.get(sid, 0) + 1
                 self._fail_run[sid] += 1
+                store.read_failed(sid)  # (its reading goes at the second in a row: see LiveReadings)
 
         return done

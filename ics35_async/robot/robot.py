@@ -197,12 +197,14 @@ class Robot:
         """The temperature and current of every joint's servo now, as the safety watch last read them.  A joint
         whose servo is offline (:attr:`unreached`) or on a line whose port is lost (:attr:`lost`, or for good:
         ``bus.port_lost``) has none (``None``), nor has one since, until the watch reads it again: the servo may
-        have come back restarted, and what was read before is not its own now.  A view shows "-" for them
-        (``ics35 play``'s live table, the configurator's Robot page)."""
+        have come back restarted, and what was read before is not its own now.  Nor has a joint whose readings
+        have failed :data:`~ics35_async.frames.STALE_AFTER_FAILED_READS` times in a row (``stale``: its servo may
+        answer its position commands still, but what was read before these reads is not its now), until one is
+        taken.  A view shows "-" for them (``ics35 play``'s live table, the configurator's Robot page)."""
         ended = {line for line, bus in self.group.buses.items() if bus.port_lost}
         gone = self.unreached | self.lost | {name for name, joint in self.joints.items() if joint.line in ended}
         return {
-            name: dataclasses.replace(seen, temperature_c=None, current=None) if name in gone else seen
+            name: dataclasses.replace(seen, temperature_c=None, current=None) if name in gone or seen.stale else seen
             for name, seen in self.watch.telemetry.items()
         }
 

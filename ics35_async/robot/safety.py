@@ -24,6 +24,7 @@ import anyio
 from .. import units
 from ..bus import Bus, Priority
 from ..errors import IcsError, PortLost, ReplyError
+from ..frames import STALE_AFTER_FAILED_READS
 from ..servo import Servo
 from .description import JointSpec, SafetySpec
 from .frame import RobotFrame
@@ -77,12 +78,22 @@ class UnsettledReadings(IcsError):
 
 @dataclass
 class JointTelemetry:
-    """The newest temperature (approximate Celsius) and current (0..63) read from a joint's servo."""
+    """The newest temperature (approximate Celsius) and current (0..63) read from a joint's servo; ``reads`` and
+    ``errors`` count the readings taken and those that failed (no reply, a garbled one), ``failed_in_row`` those
+    failed since the newest one taken (:attr:`Robot.telemetry <ics35_async.robot.Robot.telemetry>` shows none from
+    :data:`~ics35_async.frames.STALE_AFTER_FAILED_READS` on)."""
 
     temperature_c: float | None = None
     current: int | None = None
     reads: int = 0
     errors: int = 0
+    failed_in_row: int = 0
+
+    @property
+    def stale(self) -> bool:
+        """Whether the reads of the joint's servo have failed too often in a row since its newest reading for
+        that reading to pass for its now (:data:`~ics35_async.frames.STALE_AFTER_FAILED_READS`)."""
+        return self.failed_in_row >= STALE_AFTER_FAILED_READS
 
 
 class WatchedRobot(Protocol):
@@ -172,6 +183,7 @@ class SafetyWatch:
             if crossed and not confirmed & {stop.reason for stop in crossed}:
                 return  # each limit crossed by one reading only: read again next round
         seen.reads += 1
+        seen.failed_in_row = 0
         seen.temperature_c, seen.current = reading
         self.check(robot, joint, seen, confirmed)
 
@@ -184,6 +196,7 @@ class SafetyWatch:
             raw_current = await servo.read_current()
         except ReplyError:
             seen.errors += 1
+            seen.failed_in_row += 1
             return None
         return units.temperature_to_celsius(raw_temperature), units.current_from_raw(raw_current).magnitude
 

@@ -142,15 +142,24 @@ class LiveView:
                 self._follow(frame)
             if frame is None or sid in frame.unanswered:
                 continue  # a dead ID costs a full timeout per read: the stream probes it
-            with contextlib.suppress(IcsError):
+            try:
                 health = await read_health(self.bus, sid)
-                self.temperature[sid] = health["temperature_c"]
-                self.temperature_text[sid] = health["temperature_text"]
-                self.current[sid] = health["current"]
+            except IcsError:
+                # (the temperature and current are read together: one failing leaves both unread)
+                for readings in self._readings:
+                    readings.read_failed(sid)  # (gone at the second in a row: see LiveReadings)
+                continue
+            self.temperature[sid] = health["temperature_c"]
+            self.temperature_text[sid] = health["temperature_text"]
+            self.current[sid] = health["current"]
+
+    @property
+    def _readings(self) -> tuple[LiveReadings[Any], ...]:
+        return (self.current, self.temperature, self.temperature_text)
 
     def _follow(self, frame: Frame) -> None:
         """Drop the readings of the servos ``frame`` has offline."""
-        for readings in (self.current, self.temperature, self.temperature_text):
+        for readings in self._readings:
             readings.follow(frame)
 
     def position(self, servo_id: int) -> int:

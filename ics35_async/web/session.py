@@ -571,6 +571,10 @@ class LineSession:
             if position >= 0:
                 row["telemetry_error"] = None  # answering the stream: a read that failed before it is old news
             row["position_note"] = "from the live stream" if position >= 0 else "not yet read by the live stream"
+            # Its temperature and current are the stream's alone: the row's own reads stopped as it started, and
+            # one the stream has none of (not read yet, or its reads failing: see LiveReadings) is not shown.
+            for key in ("temperature", "temperature_c", "temperature_text", "current"):
+                row.pop(key, None)
             if sid in live.temperature:
                 row["temperature_c"], row["temperature"] = live.temperature[sid], None
                 row["temperature_text"] = live.temperature_text[sid]

@@ -106,3 +106,27 @@ class LosesStretchReplies(VirtualServo):
             self.lost -= 1
             return NO_REPLY
         return reply
+
+
+TELEMETRY_PARAMS = (Param.TEMPERATURE, Param.CURRENT)
+
+
+class TelemetryGoesSilent(VirtualServo):
+    """A servo that answers its first ``answered`` temperature and current reads, then leaves every later one
+    unanswered, while it answers everything else (its position commands, the guard reads after a silence): a
+    servo whose telemetry reads keep failing while its position transactions go through."""
+
+    def __init__(self, servo_id: int, answered: int, **options: Any) -> None:
+        super().__init__(servo_id, **options)
+        self.answered = answered
+        self.unanswered = 0  # (telemetry reads heard and left unanswered)
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if isinstance(command, ReadParam) and command.param in TELEMETRY_PARAMS:
+            if self.answered > 0:
+                self.answered -= 1
+            else:
+                self.unanswered += 1
+                return NO_REPLY
+        return reply
