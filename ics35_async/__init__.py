@@ -43,7 +43,7 @@ from .protocol import Param
 if TYPE_CHECKING:
     from . import sim as sim
     from .bus import Bus, BusOptions, BusTiming, Priority, RequestHandle, State, open_bus
-    from .frames import Frame, GroupFrame, StreamStats
+    from .frames import Frame, GroupFrame, LiveReadings, StreamStats
     from .group import BusGroup, GroupStream
     from .line import Line
     from .robot import Robot, RobotStream, SafetyStop, open_robot
@@ -64,6 +64,7 @@ _LAZY = {
     "open_bus": ".bus",
     "Frame": ".frames",
     "GroupFrame": ".frames",
+    "LiveReadings": ".frames",
     "StreamStats": ".frames",
     "BusGroup": ".group",
     "GroupStream": ".group",
@@ -108,6 +109,7 @@ __all__ = [
     "GroupStream",
     "Line",
     "LineStreamOptions",
+    "LiveReadings",
     "Priority",
     "RequestHandle",
     "Robot",

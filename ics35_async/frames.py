@@ -154,7 +154,10 @@ class LiveReadings(dict[int, V]):
     tables and JSON lines, the configurator's Live plots and Line page.
 
     A reader stores what it read (``readings[servo_id] = value``, which also counts the servo's failed reads from
-    zero again) and tells each read that failed (:meth:`read_failed`); a view shows what is in it."""
+    zero again) and tells each read that failed (:meth:`read_failed`); a view shows what is in it.  A program's own
+    telemetry beside a stream follows the same rules so: ``temperatures[i] = await bus.servo(i).read_temperature()``,
+    ``temperatures.read_failed(i)`` on a ``ReplyError``, ``temperatures.follow(frame)`` at each frame.  (Why two
+    failed reads, and why reads and not seconds: ``ics35_async.frames.STALE_AFTER_FAILED_READS``.)"""
 
     def __init__(self) -> None:
         super().__init__()
