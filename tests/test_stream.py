@@ -31,6 +31,7 @@ from ics35_async import (
     GroupFrame,
     GroupStream,
     InvalidArgument,
+    LiveReadings,
     Param,
     PortLost,
     Priority,
@@ -389,6 +390,37 @@ async def test_ids_given_offline_are_out_of_the_cycle_from_the_first() -> None:
     assert all(f.offline == {2} and not f.failed and set(f.positions) == {1, 3} for f in frames)
     assert [t for t in sim.log_since(0) if t.servo_id == 2] == []
     assert stream.stats.failures == {}  # (its silence was the caller's, not the stream's)
+
+
+async def test_live_readings_keep_a_reading_through_one_failed_read_and_drop_it_at_the_second_in_a_row() -> None:
+    # A program's own telemetry beside a stream, kept as the library's views keep theirs: servo 2 answers every
+    # cycle, but its temperature reads go unanswered.  One lost reply says nothing of the servo (its reading
+    # stays); two in a row, and what was read before is no longer shown as its now, until a read answers.
+    sim = make_sim([1, 2])
+    temperatures: LiveReadings[int] = LiveReadings()
+    shown: list[int | None] = []
+
+    async def read(frame: Frame) -> None:
+        temperatures.follow(frame)
+        try:
+            temperatures[2] = await bus.servo(2).read_temperature()
+        except ReplyError:
+            temperatures.read_failed(2)
+        shown.append(temperatures.get(2))
+
+    async with streaming(sim, [1, 2]) as (bus, stream):
+        await read(await next_frame(stream))
+        sim.servo(2).ignores = frozenset({"read_temperature"})
+        for _ in range(3):
+            frame = await next_frame(stream)
+            assert 2 in frame.positions and 2 not in frame.offline  # (its position answers throughout)
+            await read(frame)
+        sim.servo(2).ignores = frozenset()
+        await read(await next_frame(stream))
+        sim.servo(2).ignores = frozenset({"read_temperature"})
+        await read(await next_frame(stream))  # (one failure after an answer: counted from zero again)
+    first = shown[0]
+    assert first is not None and shown == [first, first, None, None, first, first], shown
 
 
 @pytest.mark.parametrize("target", ["free", "position"])
