@@ -1891,20 +1891,28 @@ def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float
     threading.Thread(target=run, daemon=True).start()
 
 
-def unplug_once_its_telemetry_answered(sim: VirtualLine, servo_id: int) -> None:
-    """Unplug ``servo_id`` once it has answered a current read and a temperature read (the robot's telemetry), from
-    a thread of its own."""
+TELEMETRY_READS = ("read_current", "read_temperature")
+
+
+def once_its_telemetry_answered(sim: VirtualLine, servo_id: int, then: Callable[[], object]) -> None:
+    """Call ``then`` once ``servo_id`` has answered a current read and a temperature read (the robot's telemetry),
+    from a thread of its own."""
 
     def run() -> None:
         deadline = time.monotonic() + scaled(30.0)
         while time.monotonic() < deadline:
             answered = {t.command for t in sim.log_since(0) if t.servo_id == servo_id and t.reply}
             if {"read_current", "read_temperature"} <= answered:
-                sim.remove_servo(servo_id)
+                then()
                 return
             time.sleep(0.01)
 
     threading.Thread(target=run, daemon=True).start()
+
+
+def unplug_once_its_telemetry_answered(sim: VirtualLine, servo_id: int) -> None:
+    """Unplug ``servo_id`` once it has answered a current read and a temperature read (the robot's telemetry)."""
+    once_its_telemetry_answered(sim, servo_id, lambda: sim.remove_servo(servo_id))
 
 
 def playing_on_past_offline(sims: Any, tmp_path: Path) -> tuple[Path, Path]:
@@ -1938,6 +1946,33 @@ def test_play_shows_no_target_temperature_or_current_for_a_joint_gone_offline(cl
     assert rows["hip"][-1] == "offline" and rows["hip"][-3:-1] == ["-", "-"], result.out
     assert re.fullmatch(r"\d+C", rows["neck"][-3]) and rows["neck"][-2].isdigit(), result.out  # (still read)
     assert rows["hip"][2] == "-" and rows["neck"][2] == "+20.0", result.out  # (the neck's end: sent)
+
+
+def test_play_shows_no_temperature_or_current_for_a_joint_whose_telemetry_reads_keep_failing(
+    cli: Any, tmp_path: Path
+) -> None:
+    # The hip's servo answered every position command, but its temperature and current reads went unanswered once
+    # they had answered: its row went on showing the temperature and current read then, as if read now.
+    sims = make_rig()
+    try:
+        robot_file, motion = playing_on_past_offline(sims, tmp_path)
+        hip = sims.lower.servo(JOINTS["hip"]["id"])
+        once_its_telemetry_answered(
+            sims.lower, JOINTS["hip"]["id"], lambda: setattr(hip, "ignores", frozenset(TELEMETRY_READS))
+        )
+        result = cli("play", str(robot_file), str(motion))
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    silent = [t for t in sims.lower.log_since(0) if t.command in TELEMETRY_READS and t.servo_id == hip.servo_id]
+    assert sum(not t.reply for t in silent) >= 2, silent  # (read, then failing)
+    rows = {
+        line.split()[0]: line.split() for line in result.out.splitlines() if line.split()[:1] in (["hip"], ["neck"])
+    }
+    # joint, line:ID, target°, pos°, temp, cur, state
+    assert rows["hip"][-3:-1] == ["-", "-"] and rows["hip"][-1] != "offline", result.out
+    assert rows["hip"][2] == "-10.0", result.out  # (its motion's end: sent, and it went there)
+    assert re.fullmatch(r"\d+C", rows["neck"][-3]) and rows["neck"][-2].isdigit(), result.out  # (still read)
 
 
 @pytest.mark.parametrize("loop", [False, True])
