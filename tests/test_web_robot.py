@@ -526,6 +526,24 @@ def test_an_offline_joint_shows_no_temperature_or_current(robot: Any) -> None:
     assert elbow["temperature_c"] is None and elbow["current"] is None, elbow
 
 
+def test_a_joint_whose_telemetry_reads_keep_failing_shows_no_temperature_or_current(robot: Any) -> None:
+    # Its servo answered every cycle, but not its temperature and current reads: its row went on with those read
+    # before, as if read now.
+    client, line = robot
+    wait_for(lambda: client.get("/api/robot").json()["joints"][1]["temperature_c"] is not None)
+    line.servo(2).ignores = frozenset({"read_temperature", "read_current"})
+
+    def failed_reads() -> int:
+        return sum(1 for t in line.log_since(0) if t.servo_id == 2 and t.command == "read_temperature" and not t.reply)
+
+    wait_for(lambda: failed_reads() >= 4)  # (two of its reads failed at least, with or without a retry each)
+    elbow = client.get("/api/robot").json()["joints"][1]
+    assert not elbow["offline"] and elbow["position"] is not None, elbow  # (still answering)
+    assert elbow["temperature_c"] is None and elbow["current"] is None, elbow
+    line.servo(2).ignores = frozenset()
+    wait_for(lambda: client.get("/api/robot").json()["joints"][1]["temperature_c"] is not None)  # (read again)
+
+
 def test_an_offline_joint_is_said_offline_its_target_kept_for_its_slider(tmp_path: Path) -> None:
     # Its target was sent as if it went out: the page showed it, where `ics35 play`'s live table shows "-" (the
     # robot sends an offline servo nothing).  The robot says which joints nothing reaches; the page follows it.
