@@ -14,7 +14,7 @@ from rich.text import Text
 from .. import units
 from ..frames import Frame
 from ..policies import Joining
-from ..stream import Stream
+from ..stream import WATCH, Stream
 from ._console import TitleInParts, current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
 
@@ -71,12 +71,13 @@ class LiveState:
 
     def note_comebacks(self, joining: dict[int, Joining], elapsed: float) -> None:
         """Say of each servo of ``joining`` that came back what is done with it: read where it stands (the free
-        command), then brought from there into the wave (see BlendIn), not thrown to the wave's target."""
+        command, or ICS 3.6's position read), then brought from there into the wave (see BlendIn), not thrown to the
+        wave's target."""
         for sid, join in joining.items():
             if not join.came_back:
                 continue
             if join.position is None:
-                doing = "reading where it stands (free)"
+                doing = f"reading where it stands ({'free' if join.frees else 'position read, torque left on'})"
             else:
                 degrees = signed_tenths(units.position_to_degrees(join.position))
                 doing = f"rejoining the wave from {join.position} ({degrees}°)"
@@ -171,7 +172,12 @@ class LiveState:
         cells: list[str | Text] = [str(sid)]
         if with_targets:
             target = self.targets.get(sid)
-            cells.append("free" if not target else signed_tenths(units.position_to_degrees(target)))
+            if target == WATCH:  # (read with ICS 3.6's position read: sent no target meanwhile)
+                cells.append("-")
+            elif not target:
+                cells.append("free")
+            else:
+                cells.append(signed_tenths(units.position_to_degrees(target)))
         else:
             cells.append("-" if pos is None else str(pos))
         if sid in self.no_position:

@@ -8,7 +8,7 @@ offers), so library users get the same rules the ``ics35`` command follows.
 
 from __future__ import annotations
 
-from .blend_in import BlendIn, Joining
+from .blend_in import BlendIn, Joining, probe_position_reads
 from .eeprom_write import (
     POWER_UP_PARAMS,
     EepromPlan,
@@ -98,6 +98,7 @@ __all__ = [
     "plan_position_stream",
     "power_up_note",
     "probe_ids",
+    "probe_position_reads",
     "read_position_without_freeing",
     "reopening",
     "read_eeprom_agreed",

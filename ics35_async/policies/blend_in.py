@@ -10,12 +10,13 @@ free command (ICS 3.5 has no other read).  ``ics35 demo`` follows it; a program'
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from .. import protocol, units
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, ReplyError
+from ..line import Line
 from ..servo import Servo
 from ..stream import WATCH
 
@@ -190,3 +191,25 @@ class BlendIn:
         (halfway) needs to stay within ``max_speed``."""
         degrees = abs(units.position_to_degrees(goal) - units.position_to_degrees(where))
         return max(self.seconds, SMOOTHSTEP_PEAK * degrees / self.max_speed)
+
+
+async def probe_position_reads(line: Line, ids: Iterable[int]) -> list[int]:
+    """Ask each of ``ids`` on ``line`` whether it answers ICS 3.6's position read, so that a :class:`BlendIn` on that
+    line reads one that comes back with it, not the free command; returns the IDs that do.
+
+    Nothing sent moves or frees a servo: the read and, where it is silent, a parameter read (each ID asked once a
+    line, then remembered: see :meth:`Servo.has_position_read <ics35_async.Servo.has_position_read>`).  An ID silent
+    or garbled is left untold (read with the free command, as an ICS 3.5 servo).
+
+    Raises:
+        InvalidArgument: an ID is not 0..31.
+        BusClosed, PortLost: the line is closed or its port is gone.
+    """
+    readable = []
+    for sid in [protocol.check_id(i) for i in ids]:
+        try:
+            if await Servo(line, sid).has_position_read():
+                readable.append(sid)
+        except ReplyError:
+            pass  # (nobody there, or a garbled answer: nothing told)
+    return readable
