@@ -168,3 +168,22 @@ async def test_an_ics35_servo_back_is_still_read_with_the_free_command() -> None
     assert frees_sent(sim, 2, since) >= 1 and reads_sent(sim, 2, since) == 0
     targets = [p for p in commanded(sim, 2, since) if p != FREE]
     assert abs(targets[0] - FAR) < 100 and targets[-1] == GOAL, targets[:5]
+
+
+async def test_a_watched_servo_of_untold_protocol_silent_to_the_read_is_freed_to_be_read_once_offline() -> None:
+    # Watched by the program (its protocol told by nobody), an ICS 3.5 servo stays silent to ICS 3.6's read: kept
+    # watched, it would stay offline, never brought in.  Offline unheard, nothing else can say where it stands.
+    sim = VirtualLine([VirtualServo(1, position=GOAL, ics36=True), VirtualServo(2, position=FAR)], log_size=None)
+    sent: list[tuple[float, dict[int, int]]] = []
+    async with (
+        open_bus(sim, **FAST) as bus,
+        bus.stream([1, 2], rate_hz=200, offline_after=2, probe_interval=0.02, watch=[1, 2]) as stream,
+    ):
+        blend = BlendIn(stream, 0.2)
+        seen = await blend_until_joined(stream, blend, {1: GOAL, 2: GOAL}, sent)
+    assert frees_sent(sim, 1, 0) == 0  # (the ICS 3.6 one, heard answering the read: never freed)
+    assert frees_sent(sim, 2, 0) >= 1
+    targets = [p for p in commanded(sim, 2, 0) if p != FREE]
+    assert abs(targets[0] - FAR) < 100 and targets[-1] == GOAL, targets[:5]
+    said = [joining[2] for joining in seen if 2 in joining and joining[2].position is not None]
+    assert said and said[0].frees, said[:1]
