@@ -714,3 +714,57 @@ def test_a_joint_whose_telemetry_reads_keep_failing_has_no_temperature_or_curren
     finally:
         rig.close()
     assert shown == [None, None], shown
+
+
+def test_a_watched_joint_whose_telemetry_cannot_be_read_is_said_once_an_episode(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # A max_temperature_c guards a joint only while its temperature reads: the knee's servo answered its position
+    # commands but no temperature or current read, and the watch went on without a word, as if guarding it.
+    rig = make_rig({"max_temperature_c": 70, "max_current": 40})
+    blind: list[int] = []
+
+    def said() -> list[str]:
+        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                for _ in range(2):  # two episodes, read in between
+                    rig.lower.servo(2).ignores = frozenset({"read_temperature", "read_current"})
+                    until = robot.telemetry["knee"].errors + 4
+                    await frames_until(robot, lambda until=until: robot.telemetry["knee"].errors >= until)
+                    blind.append(len(said()))
+                    rig.lower.servo(2).ignores = frozenset()
+                    await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert blind == [1, 2], (blind, said())  # once an episode, not once a failed read
+    for message in said():
+        assert "joint knee (line lower, ID 2)" in message, message
+        assert "max_temperature_c 70 and max_current 40" in message and "until they read again" in message, message
+    assert not [r for r in caplog.records if "hip" in r.getMessage() and "cannot hold" in r.getMessage()]
+
+
+def test_telemetry_that_cannot_be_read_is_not_said_where_no_limit_needs_it(caplog: pytest.LogCaptureFixture) -> None:
+    rig = make_rig()  # no [safety] limits: the reads only feed the views, which show "-" by themselves
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                rig.lower.servo(2).ignores = frozenset({"read_temperature", "read_current"})
+                errors = robot.telemetry["knee"].errors
+                await frames_until(robot, lambda: robot.telemetry["knee"].errors >= errors + 3)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert not [r for r in caplog.records if "cannot hold" in r.getMessage()]

@@ -15,6 +15,7 @@ one): nothing of it is under control, and it answers nothing to read.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -28,6 +29,8 @@ from ..frames import STALE_AFTER_FAILED_READS
 from ..servo import Servo
 from .description import JointSpec, SafetySpec
 from .frame import RobotFrame
+
+log = logging.getLogger("ics35_async.robot")
 
 REASONS = ("temperature", "current", "offline")
 
@@ -165,7 +168,7 @@ class SafetyWatch:
 
     async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
         seen = self.telemetry[joint.name]
-        reading = await self._reading(servo, seen)
+        reading = await self._reading(joint, servo, seen)
         if reading is None:
             return
         crossed = self._crossings(joint, *reading)
@@ -176,7 +179,7 @@ class SafetyWatch:
             # once more at once, and trips only if that reading crosses the same limit: two garbled replies, one
             # in each reading, are two single readings still.
             confirmed = {stop.reason for stop in crossed}
-            reading = await self._reading(servo, seen)
+            reading = await self._reading(joint, servo, seen)
             if reading is None:
                 return
             crossed = self._crossings(joint, *reading)
@@ -187,8 +190,7 @@ class SafetyWatch:
         seen.temperature_c, seen.current = reading
         self.check(robot, joint, seen, confirmed)
 
-    @staticmethod
-    async def _reading(servo: Servo, seen: JointTelemetry) -> tuple[float, int] | None:
+    async def _reading(self, joint: JointSpec, servo: Servo, seen: JointTelemetry) -> tuple[float, int] | None:
         """The servo's temperature (Celsius) and current, or None (counted in ``seen.errors``) if a reply was
         garbled."""
         try:
@@ -197,8 +199,32 @@ class SafetyWatch:
         except ReplyError:
             seen.errors += 1
             seen.failed_in_row += 1
+            if seen.failed_in_row == STALE_AFTER_FAILED_READS:  # (once an episode: a reading starts it again)
+                self._say_blind(joint)
             return None
         return units.temperature_to_celsius(raw_temperature), units.current_from_raw(raw_current).magnitude
+
+    def _say_blind(self, joint: JointSpec) -> None:
+        """Say that the limits cannot guard ``joint`` while its readings fail: its reading is not shown any more
+        (see STALE_AFTER_FAILED_READS), and a limit that nothing reads would pass for one that holds.  Not a trip:
+        freeing a joint of a standing robot because a read fails would be worse than the heat it might miss."""
+        spec = self.spec
+        limits = [
+            f"{name} {limit:g}"
+            for name, limit in (("max_temperature_c", spec.max_temperature_c), ("max_current", spec.max_current))
+            if limit is not None
+        ]
+        if not limits:
+            return  # (nothing to guard: the views show "-" by themselves)
+        log.warning(
+            "joint %s (line %s, ID %s): its temperature and current did not read %d times in a row (its servo may "
+            "still answer its position commands): the safety watch cannot hold it to %s until they read again",
+            joint.name,
+            joint.line,
+            joint.id,
+            STALE_AFTER_FAILED_READS,
+            " and ".join(limits),
+        )
 
     def check(
         self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry, confirmed: set[str] | None = None
