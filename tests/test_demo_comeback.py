@@ -114,46 +114,6 @@ def test_demo_brings_a_servo_plugged_in_once_the_wave_runs_in_from_where_it_stan
     assert max(abs(b - a) for a, b in itertools.pairwise(targets)) < 800, targets
 
 
-def drop_and_come_back_holding(sim: VirtualLine, servo_id: int, ended: threading.Event, marks: dict[str, int]) -> None:
-    """Once the wave drives ``servo_id``, unplug its signal wire (still powered: it holds the wave's last target)
-    and plug it back once the stream probes it (offline).  ``marks["back"]``: the log's length when it is back."""
-
-    def driven() -> int:
-        return sum(t.servo_id == servo_id and t.command == "position" for t in sim.log_since(0))
-
-    while not ended.is_set() and driven() < 150:
-        time.sleep(0.01)
-    if ended.is_set():
-        return
-    servo = sim.remove_servo(servo_id)
-    gone = sim.transactions
-    while not ended.is_set():
-        last = [t.command for t in sim.log_since(gone) if t.servo_id == servo_id][-2:]
-        if last == ["read_stretch", "read_stretch"]:  # (offline: see drop_restart_and_come_back)
-            break
-        time.sleep(0.01)
-    marks["back"] = sim.transactions
-    sim.add_device(servo)
-
-
-def test_demo_reads_an_ics36_servo_that_comes_back_without_freeing_it(cli: Any, sim_line: Any) -> None:
-    # Servo 3 (ICS 3.6) missed its replies for a while, still powered and holding: demo sent it the free command to
-    # read where it stood, and it let go for that moment.  Its position read says where it stands, torque left on.
-    sim, url = sim_line([VirtualServo(1), VirtualServo(2), VirtualServo(3, ics36=True)], realtime=True)
-    marks: dict[str, int] = {}
-    result = demo_beside(cli, url, "6", lambda ended: drop_and_come_back_holding(sim, 3, ended, marks))
-    assert result.code == 0, result.err
-    assert "back" in marks, "servo 3 never came back"
-    after = [t for t in sim.log_since(marks["back"]) if t.servo_id == 3]
-    sent = list(commanded(sim, 3, marks["back"]))
-    first = next(k for k, t in enumerate(after) if t.command == "position")  # (its first target once back)
-    assert "read_position" in [t.command for t in after[:first]], [t.command for t in after[:10]]
-    assert FREE not in sent[: sent.index(next(p for p in sent if p != FREE))], sent[:10]
-    summaries = [line for line in result.out.splitlines() if line.startswith("t=")]
-    assert any("servo 3 came back" in line for line in summaries), result.out
-    assert not any("servo 3 came back: reading where it stands (free)" in line for line in summaries), result.out
-
-
 GOAL = 7500
 BLEND = 1.0  # seconds: a stall of the loop's thread (a loaded machine) under a tenth of it leaves no step of 600
 

@@ -10,7 +10,7 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ..policies import ALL_IDS, StreamPlan, probe_position_reads
+from ..policies import ALL_IDS, StreamPlan
 from ..robot.description import MIN_LINE_RATE_HZ
 from ._basic import probe_ids
 from ._common import (
@@ -95,8 +95,8 @@ def demo(
 
     Every servo goes limp for the first cycle (where it stands is read with the free command) and at the
     end: servos on the desk, or a robot held up, not one standing on them.  A servo that stops answering and
-    comes back (it may have restarted elsewhere) is read again (ICS 3.6: with its position read, torque left on)
-    and joins the wave from where it stands, no faster than 60 degrees a second.
+    comes back (it may have restarted elsewhere) is read so too, and joins the wave from where it stands, no
+    faster than 60 degrees a second.
 
     \b
     No hardware:   ics35 demo                      (built-in simulator, 32 servos)
@@ -160,10 +160,6 @@ def demo(
             title = TitleInParts(
                 (f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), frozenset({1})
             )
-            # Which servos answer ICS 3.6's position read (nothing sent moves or frees one): one that comes back
-            # is read so, its torque left alone, not with the free command (see BlendIn).
-            with asking.while_asking(f"asking which of {ids_named(chosen)} have ICS 3.6's position read"):
-                await probe_position_reads(bus, [i for i in chosen if i not in silent])
             state = LiveState(chosen, title, seconds)
             started.append(state)
             # The silent IDs start out of the stream's cycle, probed as any servo that stops answering.
