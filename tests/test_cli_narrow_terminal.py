@@ -1,10 +1,13 @@
 """The command line's words on a narrow terminal: ``error:`` and ``hint:`` lines and the [y/N] questions wrap at
-words, each further line under the text; into a pipe they stay one line each, as a log keeps them."""
+words, each further line under the text, and so do its other lines (status lines, a stream's warning, click's usage
+errors); into a pipe they stay one line each, as a log keeps them."""
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +17,7 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.cli._errors import NO_REPLY_HINTS
 from ics35_async.cli._runner import SIMULATOR_NOTE
+from ics35_async.policies import trying_rate
 from ics35_async.policies.eeprom_backup import backup_document, backups_document
 from ics35_async.sim import VirtualServo
 from tests.support.terminal import screen_of, typed_on_a_terminal
@@ -106,3 +110,75 @@ def test_a_restores_note_wraps_at_words_under_its_text(tmp_path: Path) -> None:
     assert all(len(line) <= 40 for line in screen), screen
     (note,) = [line for line in said(screen, "note:") if "holds no backup" in line]
     assert note.endswith("holds no backup of servo 5 (when it was saved: no reply at 115,200 baud)"), screen
+
+
+def sentence(screen: list[str], start: str, end: str) -> str:
+    """The lines of ``screen`` from the first starting with ``start`` to the next ending with ``end``, joined by
+    spaces as a person reads them: a word the terminal cut at its last column reads as two (``1291`` / ``.9``)."""
+    first = next((k for k, line in enumerate(screen) if line.startswith(start)), None)
+    assert first is not None, f"no line starts with {start!r}: {screen}"
+    last = next((k for k in range(first, len(screen)) if screen[k].endswith(end)), None)
+    assert last is not None, f"no line from {screen[first]!r} on ends with {end!r}: {screen}"
+    return " ".join(line.strip() for line in screen[first : last + 1])
+
+
+@pytest.mark.parametrize("columns", [40, 50])
+def test_demos_status_lines_wrap_at_words(columns: int) -> None:
+    # At 40 columns: "demo done after 2.0 s: 2572 cycles, 1291" / ".9 cycles/s over 2 servos; all servos le" /
+    # "ft free"; at 50, the scan's "... at 11" / "5200 baud ...".
+    code, written = typed_on_a_terminal(["--port", "sim://?ids=1,2", "demo", "--seconds", "1"], [], columns=columns)
+    screen = screen_of(written, width=columns)
+    assert code == 0, screen
+    assert screen_of(written) == screen, screen  # (every line written fits: the terminal cut none)
+    assert sentence(screen, "no IDs given:", "...") == "no IDs given: scanning sim://?ids=1,2 at 115200 baud ..."
+    summary = sentence(screen, "demo done after", "free")
+    assert re.fullmatch(
+        r"demo done after \d+\.\d s: \d+ cycles, \d+\.\d cycles/s over 2 servos; all servos left free", summary
+    ), screen
+
+
+@pytest.mark.parametrize("columns", [30, 50])
+def test_the_rate_searchs_lines_wrap_at_words(columns: int) -> None:
+    # At 50 columns: "no answer at 625000 baud either: trying 1250000 b" / "aud ...".
+    args = ["--port", "sim://?ids=1&baud=625000", "get", "1", "speed"]
+    code, written = typed_on_a_terminal(args, [], columns=columns)
+    screen = screen_of(written, width=columns)
+    assert code == ExitCode.WRONG_BAUD, screen
+    assert screen_of(written) == screen, screen  # (every line written fits: the terminal cut none)
+    for said_first in (trying_rate(115200, 625000), trying_rate(115200, 1250000, 625000)):
+        assert sentence(screen, said_first[:20], "...") == said_first, screen
+
+
+def test_the_commands_say_their_sentences_through_the_wrapping_helpers() -> None:
+    # A sentence printed straight on a console (out.print(f"...")) is cut mid-word by a narrow terminal: the consoles
+    # soft-wrap, so that a log gets each line whole.  say and say_labelled wrap it at words on a terminal only.
+    # (Data printed as it is, markup=False, is no sentence: teach's motion as JSON.)
+    package = Path(__file__).parent.parent / "ics35_async" / "cli"
+    printed: list[str] = []
+    for path in sorted(package.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "print"
+                and ast.unparse(node.func.value) in ("out", "err", "(err if as_json else out)")
+                and node.args
+            ):
+                continue
+            verbatim = any(k.arg == "markup" and ast.unparse(k.value) == "False" for k in node.keywords)
+            if not verbatim and _words(node.args[0]):
+                printed.append(f"{path.name}:{node.lineno}: {ast.unparse(node)[:80]}")
+    assert printed == [], "\n".join(printed)
+
+
+def _words(expression: ast.expr) -> bool:
+    """Whether ``expression`` is text written in the source (a string, an f-string, one escaped, joined or chosen)."""
+    if isinstance(expression, ast.Constant):
+        return isinstance(expression.value, str)
+    if isinstance(expression, ast.IfExp):
+        return _words(expression.body) or _words(expression.orelse)
+    if isinstance(expression, ast.BinOp):
+        return _words(expression.left) or _words(expression.right)
+    return isinstance(expression, ast.JoinedStr) or (
+        isinstance(expression, ast.Call) and ast.unparse(expression.func) == "escape"
+    )

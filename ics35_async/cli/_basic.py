@@ -25,7 +25,6 @@ from ._common import (
     current_json,
     current_text,
     emit_json,
-    err,
     every_id,
     fmt_degrees,
     id_ranges,
@@ -38,7 +37,7 @@ from ._common import (
     temperature_text,
     translate,
 )
-from ._console import print_heading
+from ._console import print_heading, say
 from ._eeprom_view import eeprom_table
 from ._targets import parse_target, refuse_outside_pulse_limits
 
@@ -189,9 +188,10 @@ def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, force:
             }
         )
     else:
-        out.print(
+        say(
             f"servo {servo_id}: target {target} ({fmt_degrees(target).strip()}), "
-            f"now at {reported} ({fmt_degrees(reported).strip()})"
+            f"now at {reported} ({fmt_degrees(reported).strip()})",
+            to=out,
         )
     return 0
 
@@ -233,24 +233,26 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         )
     else:
         for i, p in report.freed.items():
-            out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
+            say(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})", to=out)
         for i, e in report.failed.items():
             # Only silence is "no answer": a garbled reply means something at that ID did answer (two servos
             # sharing it, most often), which the supply and wiring hints below would not mend.
             what = "no answer" if isinstance(e, ReplyTimeout) else "garbled reply" if _garbled(e) else "failed"
-            err.print(f"[red]servo {i}: {what}[/red] ({escape(str(e))})")
+            say(f"[red]servo {i}: {what}[/red] ({escape(str(e))})")
         if report.unknown and every_servo:  # (most of them empty IDs: one line)
-            out.print(
+            say(
                 f"ID(s) {id_ranges(report.unknown)}: [bold]unknown[/bold]: the line was lost before they answered "
-                "(free or still holding)"
+                "(free or still holding)",
+                to=out,
             )
         else:
             for i in report.unknown:
-                out.print(
-                    f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still holding)"
+                say(
+                    f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still holding)",
+                    to=out,
                 )
         if report.absent:
-            err.print(f"no answer from ID(s) {id_ranges(report.absent)} at {settings.baud} baud: no servo there")
+            say(f"no answer from ID(s) {id_ranges(report.absent)} at {settings.baud} baud: no servo there")
     if report.lost is not None:
         raise translate(settings, report.lost)
     if report.failed:
@@ -369,14 +371,15 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
         emit_json(doc)
         return 0
     if memory == "EEPROM":
-        out.print(
+        say(
             f"servo {servo_id} {param} = {limit_text(param, value)}  ({HOTTER.get(param, '')}EEPROM value, "
             f"loaded at power-up: the RAM limit cannot be read back, so a later `ics35 set {servo_id} {param} ...` "
-            "is not reflected here)"
+            "is not reflected here)",
+            to=out,
         )
         return 0
     shown = {"current": current_text, "temperature": temperature_text}.get(param, str)(value)
-    out.print(f"servo {servo_id} {param} = {shown}  (RAM, now; {_PARAM_NOTES[param]})")
+    say(f"servo {servo_id} {param} = {shown}  (RAM, now; {_PARAM_NOTES[param]})", to=out)
     return 0
 
 
@@ -411,9 +414,10 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
         # The value to type: the EEPROM keeps the stretch twice over (RAM 1..127 is 2..254 there).
         stored = units.stretch_to_eeprom(written) if param == "stretch" else written
         keep = settings.command_line("eeprom", "set", str(servo_id), f"{_EEPROM_TWIN[param].split()[0]}={stored}")
-        out.print(
+        say(
             f"servo {servo_id} {param} = {limit_text(param, written)} ({HOTTER.get(param, '')}RAM only: lost at "
-            f"power-off; to keep it: {escape(keep)})"
+            f"power-off; to keep it: {escape(keep)})",
+            to=out,
         )
     return 0
 

@@ -64,7 +64,7 @@ def wrapped_at_width(text: Text) -> Text:
 def print_heading(line: str) -> None:
     """``line`` (plain text: what a table shows) printed above its table, wrapped between its words on a terminal,
     whole into a log.  Not the table's title: rich cuts a title at the table's width ("...in their EEPROM (l")."""
-    out.print(Text(line), soft_wrap=not out.is_terminal)
+    say(escape(line), to=out)
 
 
 @dataclass(frozen=True)
@@ -508,26 +508,40 @@ def say_error(error: CliError) -> None:
 NARROWEST_TEXT = 16
 
 
-def say_labelled(label: str, text: str) -> None:
+def say_labelled(label: str, text: str, *, to: Console = err) -> None:
     """``label`` (``error:``, ``  hint:``, ``warning:``, ``note:``) and ``text`` after it (both rich markup), on
-    stderr.  On a terminal, wrapped at words to its width, each further line indented under the text: the consoles
-    soft-wrap (see ``out``), so the terminal cut a long line at its last column, mid-word (``chec`` / ``k the
-    cable``), and its further lines began under the label.  Into a log (a pipe, a file, CI), one line however long,
-    as a table goes into one whole (see :func:`printed_table`): read later in a wider window, and found whole by
-    grep."""
-    head, body = Text.from_markup(label), Text.from_markup(text)
-    if not err.is_terminal:
-        err.print(Text.assemble(head, " ", body), soft_wrap=True)
-        return
-    width, indent = err.width, head.cell_len + 1
+    stderr (or ``to``).  On a terminal, wrapped at words to its width, each further line indented under the text:
+    the consoles soft-wrap (see ``out``), so the terminal cut a long line at its last column, mid-word (``chec`` /
+    ``k the cable``), and its further lines began under the label.  Into a log (a pipe, a file, CI), one line
+    however long, as a table goes into one whole (see :func:`printed_table`): read later in a wider window, and
+    found whole by grep."""
+    to.print(fitted_to(to, Text.from_markup(label).append(" "), Text.from_markup(text)), soft_wrap=True)
+
+
+def say(text: str, *, to: Console = err) -> None:
+    """``text`` (rich markup), a sentence on a line of its own (what the command is doing, how it ended), on stderr
+    (or ``to``): on a terminal wrapped at words to its width, as :func:`say_labelled` wraps its text, further lines
+    indented as far as its first (``  line arms: ...``); into a log, one line."""
+    body = Text.from_markup(text)
+    indent = len(body.plain) - len(body.plain.lstrip(" "))
+    to.print(fitted_to(to, body[:indent], body[indent:]), soft_wrap=True)
+
+
+def fitted_to(console: Console, head: Text, body: Text) -> Text:
+    """``head`` (a label and the space after it, an indent, nothing) and ``body`` after it, as written to
+    ``console``: on a terminal, ``body`` wrapped at words to its width, each further line under its first word;
+    into a log, one line (see :func:`say_labelled`)."""
+    if not console.is_terminal:
+        return Text.assemble(head, body)
+    width, indent = console.width, head.cell_len
     if width - indent < NARROWEST_TEXT:
-        lines = words_wrapped(Text.assemble(head, " ", body), width)
+        lines = words_wrapped(Text.assemble(head, body), width)
     else:
         lines = [
-            Text.assemble(head if k == 0 else " " * head.cell_len, " ", line)
+            Text.assemble(head if k == 0 else " " * indent, line)
             for k, line in enumerate(words_wrapped(body, width - indent))
         ]
-    err.print(Text("\n").join(lines), soft_wrap=True)
+    return Text("\n").join(lines)
 
 
 def words_wrapped(text: Text, width: int) -> list[Text]:

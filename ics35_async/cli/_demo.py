@@ -17,7 +17,6 @@ from ._common import (
     ID_LIST,
     CliError,
     confirm,
-    err,
     every_id,
     id_ranges,
     ids_named,
@@ -27,7 +26,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
-from ._console import TitleInParts
+from ._console import TitleInParts, say
 from ._live import (
     AskingIds,
     LiveOptions,
@@ -140,7 +139,7 @@ def demo(
                     # Each named ID is asked first, as a scan asks (a short wait each once a servo has answered):
                     # streamed unasked, an ID where no servo is cost the stream's first cycles its whole --timeout
                     # each, three cycles before the stream left it out (the terminal blank meanwhile).
-                    err.print(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
+                    say(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
                     with asking.while_asking(f"asking {ids_named(chosen)}"):
                         answered, garbled = await probe_ids(bus, chosen)
                     # (none answering: streamed as they are, the run's end says so and looks at other rates)
@@ -174,10 +173,11 @@ def demo(
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     cycles = f"{state.cycle} cycle{'' if state.cycle == 1 else 's'}"
     servos = f"{len(state.ids)} servo{'' if len(state.ids) == 1 else 's'}"
-    out.print(
+    say(
         f"demo {f'stopped by {stop_name()}' if state.stopped_by_signal else 'done'} after "
         f"{state.elapsed:.1f} s: {cycles}, "  # (the wave's time: not the scan's, nor the question's)
-        f"{state.rate_avg:.1f} cycles/s over {servos}; all servos left free"
+        f"{state.rate_avg:.1f} cycles/s over {servos}; all servos left free",
+        to=out,
     )
     return 0
 

@@ -22,7 +22,8 @@ from ..errors import IcsError
 from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
-from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
+from ._common import CliError, ExitCode, all_ids_option, emit_json, ids_text, json_option, out, run, settings_of
+from ._console import say, say_labelled
 from ._errors import answered_garbled, nothing_answered, trying_rates
 from ._settings import Settings
 
@@ -106,37 +107,38 @@ def print_report(
     system: SystemReport, line: LineReport | None, findings: list[Finding], simulated: bool = False
 ) -> None:
     if simulated:
-        out.print(SIMULATOR_NOTE)
+        say(SIMULATOR_NOTE, to=out)
     elif system.ports:
-        out.print("[bold]ports[/bold]")
+        say("[bold]ports[/bold]", to=out)
         for p in system.ports:
             kind = adapter_name(p.usb_id) or ("Kondo adapter" if p.kondo else p.description or "-")
-            out.print(f"  {escape(p.device)}  {p.usb_id or '-'}  {escape(kind)}")
+            say(f"  {escape(p.device)}  {p.usb_id or '-'}  {escape(kind)}", to=out)
     else:
-        out.print("[bold]ports[/bold]: none found")
+        say("[bold]ports[/bold]: none found", to=out)
     if system.latency_timer_ms is not None:
         opened = ", with the port open" if system.timer_read_open else ""
-        out.print(f"latency timer (from the system{opened}): {system.latency_timer_ms} ms")
+        say(f"latency timer (from the system{opened}): {system.latency_timer_ms} ms", to=out)
     if line is not None and line.median is not None and line.p99 is not None:
         rates = line.cycle_hz()
-        out.print(
+        say(
             f"[bold]line{' (simulated)' if simulated else ''}[/bold] at {line.baudrate} baud: "
             f"servo(s) {ids_text(line.servo_ids)}; "
             f"round trip median {line.median * 1e3:.2f} ms, p99 {line.p99 * 1e3:.2f} ms "
-            f"({len(line.all_samples)} reads)"
+            f"({len(line.all_samples)} reads)",
+            to=out,
         )
         suspected = line.suspected_timer_ms
-        out.print(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}")
+        say(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}", to=out)
         these = "" if rates["servos"] == 32 else f"{rates['now']:.1f} Hz for these {rates['servos']}, "
-        out.print(f"position cycle rate now (estimated from the reads): {these}{rates['now_32']:.1f} Hz for 32")
+        say(f"position cycle rate now (estimated from the reads): {these}{rates['now_32']:.1f} Hz for 32", to=out)
         for fix in rates["after_fixes"]:
-            out.print(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)")
-        out.print(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32")
+            say(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)", to=out)
+        say(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32", to=out)
     for f in findings:
         style = SEVERITY_STYLE[f.severity]
-        err.print(f"[{style}]{f.severity}:[/{style}] {escape(f.problem)}", soft_wrap=True)
+        say_labelled(f"[{style}]{f.severity}:[/{style}]", escape(f.problem))
         if f.fix:
-            err.print(f"  [cyan]fix:[/cyan] {escape(f.fix)}", soft_wrap=True)
+            say_labelled("  [cyan]fix:[/cyan]", escape(f.fix))
 
 
 @click.command()
@@ -220,9 +222,9 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     else:
         # The failure itself is printed last, as every command's error is: not twice.
         shown = [f for f in findings if failure is None or f.problem != failure.message]
-        out.print(f"{PATH_NAME}: {escape(burst_text)}")
-        out.print(f"{ENGINE_NAME}: {escape(engine_compiled()[1])}")
-        out.print(f"{TIMER_NAME}: {escape(fine_deadlines()[1])}")
+        say(f"{PATH_NAME}: {escape(burst_text)}", to=out)
+        say(f"{ENGINE_NAME}: {escape(engine_compiled()[1])}", to=out)
+        say(f"{TIMER_NAME}: {escape(fine_deadlines()[1])}", to=out)
         print_report(system, line, shown, simulated)
     if failure is not None:
         raise failure

@@ -44,7 +44,6 @@ from ._common import (
     NobodyAnswered,
     Settings,
     emit_json,
-    err,
     every_id,
     id_ranges,
     ids_text,
@@ -54,7 +53,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
-from ._console import SIMULATED_KEY, say_labelled
+from ._console import SIMULATED_KEY, say, say_labelled
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 from ._paths import check_backup_path, check_output_dir, check_output_path, names_directory
@@ -195,7 +194,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     if missing and len(ids) > 1:
         if every_id(ids):  # "all": the servos on the line, whichever they are
             answered = sorted([*images, *read.unread, *read.garbled, *read.failed])
-            err.print(
+            say(
                 f"{len(answered)} servo{'' if len(answered) == 1 else 's'} answered at {settings.baud} baud: "
                 f"{'ID' if len(answered) == 1 else 'IDs'} {ids_text(answered)} (a servo "
                 f"at another rate does not: {settings.command_line('scan')} finds every rate)"
@@ -225,7 +224,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             )
             kept = write_backup(path, doc)
             also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
-            err.print(f"EEPROMs of servos {id_ranges(images)} saved to {escape(str(path))}{also}")
+            say(f"EEPROMs of servos {id_ranges(images)} saved to {escape(str(path))}{also}")
     else:
         for i, image in images.items():
             doc = dump_document(image, i, settings)
@@ -236,7 +235,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             target = path / backup_file_name([i]) if kind == "dir" else path
             kept = write_backup(target, doc)
             also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
-            err.print(f"EEPROM of servo {i} saved to {escape(str(target))}{also}")
+            say(f"EEPROM of servo {i} saved to {escape(str(target))}{also}")
     if read.lost is not None:
         failure = read.lost
         rest = ",".join(str(i) for i in read.unread)
@@ -281,7 +280,7 @@ def read_backups(source: str) -> Backups:
     try:
         if source == "-":
             if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
-                err.print("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
+                say("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
             stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
             raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
             text = decode_user_text(raw, BACKUP_IS)

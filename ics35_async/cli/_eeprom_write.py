@@ -32,7 +32,7 @@ from ._common import (
     out,
     translate,
 )
-from ._console import say_labelled
+from ._console import say, say_labelled
 from ._eeprom_view import baud_text, diff_table, flags_text
 
 
@@ -77,9 +77,10 @@ def show_plan(
     that were not named to be cleared (``asked_cleared``, as ``flags-=NAME`` names them), PWMINH cleared
     however asked, a new baud rate."""
     if plan.baud != line_baud:
-        (err if as_json else out).print(
+        say(
             f"servo {plan.servo_id} answers at {plan.baud:,} baud (the line's rate is {line_baud:,}): "
-            "it is read, written and verified at its own rate"
+            "it is read, written and verified at its own rate",
+            to=err if as_json else out,
         )
     (err if as_json else out).print(diff_table(plan))
     # A flag cleared by name (flags-=NAME) was meant: advice to clear flags by name would send the person to
@@ -175,7 +176,7 @@ async def write_plans(
         if plan.diff:
             show_plan(plan, as_json, flag_advice, line_baud, asked_cleared)
         elif not as_json:
-            out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
+            say(f"servo {plan.servo_id}: EEPROM already matches, nothing to write", to=out)
         if plan.kept_note and not as_json:
             say_labelled("note:", escape(plan.kept_note))
     if not pending:
@@ -205,7 +206,7 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
     sid, changes, outcome = report["id"], report["changes"], WriteOutcome[report["outcome"].upper()]
     if outcome is WriteOutcome.UNCHANGED:
         if whole:
-            out.print(f"servo {sid}: {outcome.value}")
+            say(f"servo {sid}: {outcome.value}", to=out)
         return
     # The outcomes short of a verified write: one line each, naming what the servo may hold; the command that
     # tells which reaches the servo at the rate it was written at (a restore's servo at another rate too).
@@ -222,10 +223,10 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         WriteOutcome.DIFFERS: "[bold red]written, but the image read back differs[/bold red]",
     }
     if outcome in short_of_verified:
-        out.print(f"servo {sid}: {short_of_verified[outcome]}")
+        say(f"servo {sid}: {short_of_verified[outcome]}", to=out)
         return
     elsewhere = f" at {report['baud']:,} baud" if report.get("baud", settings.baud) != settings.baud else ""
-    out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified{elsewhere}")
+    say(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified{elsewhere}", to=out)
     new_id = changes.get("servo_id", [sid, sid])[1]
     now_id = new_id if report.get("answers_as") == [new_id] else sid  # (the ID it answers as now)
     note = power_up_note(
@@ -233,27 +234,28 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         lambda param, value: there.command_line("set", str(now_id), param.replace("_", "-"), str(value)),
     )
     if note:
-        out.print(escape(note), soft_wrap=True)
+        say(escape(note), to=out)
     if "baud_rate" in changes:
         new = changes["baud_rate"][1]
         if report.get("answers_at_new_rate"):
-            out.print(f"it already answers at {new} baud: use --baud {new}")
+            say(f"it already answers at {new} baud: use --baud {new}", to=out)
         else:
             checked = f" (not checked: {report['new_rate_error']})" if report.get("new_rate_error") else ""
-            out.print(f"power-cycle the servo: from then on it talks only at {new} baud (use --baud {new}){checked}")
+            say(f"power-cycle the servo: from then on it talks only at {new} baud (use --baud {new}){checked}", to=out)
     if "servo_id" in changes:
         old, new = changes["servo_id"]
         answers = report.get("answers_as", [])
         if answers == [new]:
-            out.print(f"the servo now answers as ID {new}")
+            say(f"the servo now answers as ID {new}", to=out)
         elif answers == [old]:
-            out.print(
-                f"the servo still answers as ID {old}: its EEPROM holds ID {new}, which it takes at its next power-up"
+            say(
+                f"the servo still answers as ID {old}: its EEPROM holds ID {new}, which it takes at its next power-up",
+                to=out,
             )
         elif answers:
-            out.print(f"both ID {new} and ID {old} answer now; after a power-cycle only ID {new} should")
+            say(f"both ID {new} and ID {old} answer now; after a power-cycle only ID {new} should", to=out)
         else:
-            out.print(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)")
+            say(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)", to=out)
 
 
 def said_nothing_written(exc: CliError, servos: str) -> bool:

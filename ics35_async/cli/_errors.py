@@ -11,7 +11,7 @@ from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
 from ..transports.wire_device import is_url, url_scheme
-from ._console import err, no_servo_among
+from ._console import err, no_servo_among, say
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
 
@@ -157,7 +157,7 @@ def trying_rates(settings: Settings) -> Callable[[int], None]:
 
     def tell(baud: int) -> None:
         if err.is_terminal:
-            err.print(trying_rate(settings.baud, baud, told[-1] if told else None))
+            say(trying_rate(settings.baud, baud, told[-1] if told else None))
         told.append(baud)
 
     return tell

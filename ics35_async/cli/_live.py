@@ -35,7 +35,6 @@ from ._common import (
     Settings,
     answered_garbled,
     emit_json,
-    err,
     id_ranges,
     ids_text,
     none_of_them_answered,
@@ -46,6 +45,7 @@ from ._console import (
     ids_argument,
     live_view,
     printed_table,
+    say,
     say_labelled,
     scan_progress,
     wrapped_at_width,
@@ -161,7 +161,7 @@ async def run_live(
             if live is not None:
                 live.start()
             elif not options.as_json:  # (a log's lines name no command: what they are comes first)
-                out.print(f"{state.title.whole}; one line per second, table at the end")
+                say(f"{state.title.whole}; one line per second, table at the end", to=out)
             try:
                 async with stream:
                     try:
@@ -199,7 +199,7 @@ async def run_live(
                             render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
                         elif not options.as_json:
                             clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
-                            err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
+                            say("stopping: freeing the servos" if options.free_at_end else "stopping")
                     finally:
                         # The run's time, not its last frame's (the next one may have been due after the time was up).
                         state.elapsed = max(state.elapsed, loop.time() - start)
@@ -286,7 +286,7 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
     if not quiet:
         # (Said first, whatever was asked: on a line where IDs stay silent the scan takes a --timeout each, and a
         # log keeps this line where the terminal's progress bar is gone once the scan ends.)
-        err.print(f"{'' if asked_all else 'no IDs given: '}scanning {escape(shown)} at {settings.baud} baud ...")
+        say(f"{'' if asked_all else 'no IDs given: '}scanning {escape(shown)} at {settings.baud} baud ...")
     with scan_progress([settings.baud], len(ALL_IDS), show=not quiet) as steps:
         steps.line_open()  # (the command's line, opened before)
         answered, garbled = await probe_ids(bus, ALL_IDS, on_probe=steps.advance)
@@ -297,7 +297,7 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
         raise NobodyAnswered(settings, where, silent=bus.stats.total.bytes_rx == 0)
     absent = sorted(set(ALL_IDS) - set(answered) - set(garbled))
     if asked_all and absent and not quiet:
-        err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
+        say(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
     if garbled:  # left out of the stream, said whatever was asked: servos there, which it will not move or read
         say_labelled(
             "[yellow]warning:[/yellow]",
@@ -356,7 +356,7 @@ class AskingIds:
             timeout = self.settings.timeout
             if not self.quiet and timeout >= NOTICEABLE_WAIT and not self.waiting_for_port:
                 clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
-                err.print(
+                say(
                     f"stopping: waiting out the request on the wire (up to {timeout:g} s, --timeout) so that its "
                     "late reply cannot reach the port's next command; Ctrl-C again leaves at once"
                 )
@@ -382,7 +382,7 @@ class AskingIds:
                     await self._wait_for_port(bus, exc, what)
 
     async def _wait_for_port(self, bus: Bus, lost: IcsError, what: str) -> None:
-        err.print(f"the port is lost while {what}: waiting for it to come back (--reconnect; Ctrl-C ends)")
+        say(f"the port is lost while {what}: waiting for it to come back (--reconnect; Ctrl-C ends)")
         # (A Ctrl-C meanwhile has no request on the wire to wait out: read by while_asking's handler, so left set
         # where the wait ends by an exception.)
         self.waiting_for_port = True
@@ -395,7 +395,7 @@ class AskingIds:
         self.waiting_for_port = False
         if bus.state is State.CLOSED:
             raise line_error(self.settings, lost)
-        err.print(f"the port is back: {what} again")
+        say(f"the port is back: {what} again")
 
     def last_words(self, error: CliError) -> CliError:
         """``error``, an interruption while asking, saying what was asked and that nothing moved or was freed."""
@@ -430,7 +430,7 @@ def final_report(
     (naming the rate the servos answer at when it is another)."""
     if options.plot is not None:
         recorder.write(options.plot, plot_title)
-        err.print(f"plot written to {escape(options.plot)}")
+        say(f"plot written to {escape(options.plot)}")
     if not options.as_json and not out.is_terminal:
         out.print(printed_table(state.table(telemetry, options.with_targets)))
         out.print(state.summary(telemetry))

@@ -11,7 +11,6 @@ from ._common import (
     ID_LIST,
     CliError,
     ExitCode,
-    err,
     every_id,
     ids_named,
     json_option,
@@ -20,7 +19,7 @@ from ._common import (
     seconds_option,
     settings_of,
 )
-from ._console import TitleInParts
+from ._console import TitleInParts, say
 from ._live import AskingIds, LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -100,7 +99,7 @@ def monitor(
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
                 # said, as a scan says it scans, so a wait of seconds is not a blank terminal (nor a log silent
                 # about what came before its first line).
-                err.print(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
+                say(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
             plan = await asking.ask(
                 bus,
                 f"asking {ids_named(chosen)}",
@@ -128,7 +127,7 @@ def monitor(
             state.no_position = missing
             if missing and not as_json:
                 for sid, why in missing.items():
-                    err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
+                    say(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
             return await run_live(settings, bus, plan.streamed, state, options, None, plan)
 
     try:

@@ -18,7 +18,7 @@ from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
 from ._common import CliError, ExitCode, emit_json, ids_named, json_option, out
-from ._console import printed_table, say_error
+from ._console import printed_table, say, say_error
 from ._robot_common import MOTION_FILE_PROBLEMS, MotionFileError, load_motion_file, load_robot_file
 
 Refused = TypeVar("Refused", bound=CliError)
@@ -107,11 +107,11 @@ def show_robot(path: str, description: RobotDescription) -> None:
     lines, joints = description.lines, description.joints
     called = f"robot {escape(description.name)}, " if description.name else ""
     counts = f"{_plural(len(lines), 'line')}, {_plural(len(joints), 'joint')}"
-    out.print(f"{escape(path)}: {called}{counts} (no port opened)")
+    say(f"{escape(path)}: {called}{counts} (no port opened)", to=out)
     for line in lines.values():
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
         ids = ids_named(joint.id for joint in description.joints_on(line.name))
-        out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, {ids}")
+        say(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, {ids}", to=out)
     # (no value wraps: a terminal too narrow leaves the line out, then wraps the names: see FittedTable)
     table = Table(box=None, pad_edge=False)
     for heading in ("joint", "line", "ID", "reverse"):
@@ -131,11 +131,12 @@ def show_robot(path: str, description: RobotDescription) -> None:
     out.print(printed_table(table, LEAVE_OUT, indent=2))
     whole = [joint.name for joint in joints.values() if _whole_travel(joint)]
     if whole:
-        out.print(
+        say(
             f"  {escape(', '.join(whole))}: {'its limits are' if len(whole) == 1 else 'their limits are each'} the "
-            "servo's whole travel (no min or max in the file: ics35 calibrate finds a joint's own)"
+            "servo's whole travel (no min or max in the file: ics35 calibrate finds a joint's own)",
+            to=out,
         )
-    out.print(f"  {safety_text(description.safety)}")
+    say(f"  {safety_text(description.safety)}", to=out)
 
 
 @click.command()
@@ -175,9 +176,10 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
                     say_error(motion)
                 continue
             moves = ", ".join(motion.joints)
-            out.print(
+            say(
                 f"{escape(path)}: {_plural(len(motion.keyframes), 'keyframe')}, {shown(motion.duration)} s, "
-                f"moves {escape(moves)}: fits the robot"
+                f"moves {escape(moves)}: fits the robot",
+                to=out,
             )
     if not refused:
         return 0

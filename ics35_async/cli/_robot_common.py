@@ -47,7 +47,7 @@ from ..robot import (
 from ..robot.description import check_not_a_port
 from ..robot.motion import MotionError, check_motion
 from ..transports.wire_device import is_url, url_scheme
-from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
+from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, run_loop, translate
 from ._console import ids_argument, say_labelled
 from ._paths import InputPathError
 
@@ -164,7 +164,9 @@ def note_ports(settings: Settings, robot_file: str) -> None:
     if unused:
         names = ", ".join(unused[:-1]) + f" and {unused[-1]}" if len(unused) > 1 else unused[0]
         verb = "are" if len(unused) > 1 else "is"
-        err.print(f"[dim]note: the lines come from {escape(robot_file)}; {names} {verb} not used[/dim]")
+        say_labelled(
+            "[dim]note:[/dim]", f"[dim]the lines come from {escape(robot_file)}; {names} {verb} not used[/dim]"
+        )
 
 
 def left_after_trip(exc: SafetyStop, left: str | None) -> str:

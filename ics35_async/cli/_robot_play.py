@@ -23,8 +23,8 @@ from ..robot.motion import SPEEDS, check_pace
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
-from ._common import CliError, ExitCode, choice_option, err, out, seconds_option, settings_of
-from ._console import TitleInParts
+from ._common import CliError, ExitCode, choice_option, out, seconds_option, settings_of
+from ._console import TitleInParts, say, say_labelled
 from ._robot_common import (
     Opening,
     chosen_joints,
@@ -170,16 +170,18 @@ def play(
             show_warnings(robot)
             if untouched:
                 which = "neither in the motion" if joints is None else "neither in --joints"
-                err.print(
-                    f"[dim]note: joints {which} nor in --start-pose, left as they are (nor watched by "
-                    f"the file's safety): {escape(', '.join(untouched))}[/dim]"
+                say_labelled(
+                    "[dim]note:[/dim]",
+                    f"[dim]joints {which} nor in --start-pose, left as they are (nor watched by "
+                    f"the file's safety): {escape(', '.join(untouched))}[/dim]",
                 )
             limp = [name for name, mode in robot.start_modes.items() if mode == "free"]
             if limp:
                 which = "every joint it moves" if len(limp) == len(robot.joints) else escape(", ".join(limp))
-                err.print(
-                    f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
-                    "--start-pose states where they are instead[/dim]"
+                say_labelled(
+                    "[dim]note:[/dim]",
+                    f"[dim]{which} started free (ICS 3.5 servos are read by freeing them); "
+                    "--start-pose states where they are instead[/dim]",
                 )
             await first_pose(robot)
             opening.over()
@@ -215,7 +217,7 @@ def play(
                 lambda: joint_table(robot, title.whole, motion.joints, lost=bool(lost)), summary, title
             ) as screen:
                 if not screen.tty:
-                    out.print(f"{title.whole}; one line per second, table at the end")
+                    say(f"{title.whole}; one line per second, table at the end", to=out)
 
                 async def one_pass() -> bool:
                     """Play the motion once; False if it gave up a joint whose servo came back after going offline
@@ -333,7 +335,7 @@ def play(
             f"and {'was' if one else 'were'} sent nothing since (restarted, a servo is free, and may be elsewhere)"
         )
     but = f", but {'; and '.join(buts)}" if buts else ""
-    out.print(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}")
+    say(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}", to=out)
     return 0
 
 

@@ -42,13 +42,12 @@ from ._common import (
     check_output_path,
     choice_option,
     confirm,
-    err,
     out,
     seconds_option,
     settings_of,
     yes_option,
 )
-from ._console import TitleInParts, say_labelled, signed_tenths
+from ._console import TitleInParts, say, say_labelled, signed_tenths
 from ._robot_common import (
     Opening,
     TypedLines,
@@ -220,7 +219,7 @@ def teach(
             # frees free joints, and a second Ctrl-C has nothing to cut short.
             nothing_left_to_cut_short()
             lines = TypedLines()
-            err.print(
+            say(
                 "the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
                 "[bold]q[/bold] then Enter ends (Ctrl-C too)"
             )
@@ -309,16 +308,12 @@ def save_taught(
     if backup is not None:
         play = f"the file it replaced is kept as {escape(str(backup))}; {play}"
     if on_error:
-        err.print(
+        say(
             f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "
-            f"({motion.duration:.1f} s); {play}",
-            soft_wrap=True,
+            f"({motion.duration:.1f} s); {play}"
         )
     else:
-        out.print(
-            f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}",
-            soft_wrap=True,
-        )
+        say(f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}", to=out)
 
 
 @dataclass
@@ -545,7 +540,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         run_robot(settings, description.only(names), body, others_left="free", opening=opening)  # (as teach's)
     except CliError as exc:
         if lost:
-            err.print(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
+            say(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
         if exc.code == ExitCode.INTERRUPTED:  # (the file is written only once step 2 ends with Enter)
             left = opening.joints_left()
             exc.message = (
@@ -596,7 +591,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     for name, joint in calibrated.items():
         # The offset as written: on a whole count, up to 5 decimals (limits are rounded inward to 0.1 degree).
         offset, least, most = signed_count_angle(joint.offset), signed_tenths(joint.min), signed_tenths(joint.max)
-        out.print(f"{name}: offset {offset}, min {least}, max {most}")
+        say(f"{name}: offset {offset}, min {least}, max {most}", to=out)
         # A free servo turns by hand past its pulse limits, which bound only the positions it is sent.
         problem = limit_problem(robot_file, joint, eeproms[name]) if name in eeproms else None
         if problem is not None:
@@ -608,7 +603,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             ExitCode.USAGE, f"cannot write {robot_file}: {error_text(exc)}; the calibrated values are printed above"
         ) from None
     if written.in_place:
-        out.print(f"written into {escape(str(written.path))} (comments kept)")
+        say(f"written into {escape(str(written.path))} (comments kept)", to=out)
     elif written.comments_kept:
         say_labelled(
             "[yellow]note:[/yellow]",
@@ -623,7 +618,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             f"{escape(str(written.path))} (a complete file, without comments)",
         )
     if written.backup is not None:
-        out.print(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}")
+        say(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}", to=out)
     return 0
 
 

@@ -22,8 +22,8 @@ from ..engine import State
 from ..robot import JointSpec, Robot, RobotFrame
 from ..robot.description import SERVO_DEGREES
 from ..terminal import clear_echoed_ctrl_c
-from ._common import err, out
-from ._console import LiveTable, TitleInParts, live_view, printed_table, signed_tenths, wrapped_at_width
+from ._common import out
+from ._console import LiveTable, TitleInParts, live_view, printed_table, say, signed_tenths, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 # The columns a terminal too narrow for the whole table goes without, in turn: the servo behind each joint (the
@@ -147,7 +147,7 @@ class Screen:
         if self._live is None:
             if stopping:
                 clear_echoed_ctrl_c()
-            err.print(message)
+            say(message)
             return
         self._said = message
         self.update(force=True)

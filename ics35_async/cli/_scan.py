@@ -37,7 +37,7 @@ from ._common import (
     translate,
     yes_option,
 )
-from ._console import print_heading, printed_table, say_labelled, scan_progress
+from ._console import print_heading, printed_table, say, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
 
 # --------------------------------------------------------------------------- scan
@@ -195,7 +195,7 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         [f"{n} at {b} baud" for b, n in by_baud.items()]
         + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else [])
     )
-    out.print(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}")
+    say(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}", to=out)
     if len(by_baud) > 1:
         most = max(by_baud, key=lambda b: by_baud[b])
         move = settings.command_line("--baud", "ITS_RATE", "eeprom", "set", "ID", f"baud_rate={most}", "--change-baud")
@@ -327,7 +327,7 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
             if old == new_id:
                 return old, new_id
             if not as_json:
-                out.print(f"one servo on the line: ID {old}")
+                say(f"one servo on the line: ID {old}", to=out)
             asking = True
             confirm(f"Change servo ID {old} -> {new_id} (stored in its EEPROM)?", yes)
             await policies.write_lone_id(bus, new_id, survey=survey, on_sent=lambda: sent(old))
@@ -351,9 +351,9 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     if as_json:
         emit_json({"old": old, "new": new, "changed": old != new})
     elif old == new:
-        out.print(f"servo already has ID {new}: nothing written")
+        say(f"servo already has ID {new}: nothing written", to=out)
     else:
-        out.print(f"servo ID {old} -> {new}: done (verified: ID {new} answers)")
+        say(f"servo ID {old} -> {new}: done (verified: ID {new} answers)", to=out)
     return 0
 
 

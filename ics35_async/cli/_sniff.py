@@ -15,13 +15,19 @@ from rich.markup import escape
 from ..errors import IcsError
 from ..protocol.listening import DEFAULT_GAP, HeardTransaction, LineListener
 from ..transports.serial_port import open_serial, posix_fd
-from ._common import CliError, ExitCode, check_output_path, err, out, seconds_option, settings_of, translate
+from ._common import CliError, ExitCode, check_output_path, out, seconds_option, settings_of, translate
+from ._console import say, say_labelled
 from ._settings import Settings
 
 POLL = 0.05  # seconds between looks at the clock while the line is silent
 
 
 def text_line(h: HeardTransaction) -> str:
+    return "  ".join(text_parts(h))
+
+
+def text_parts(h: HeardTransaction) -> tuple[str, str]:
+    """A transaction's text line in two: its time, and what was heard then."""
     who = f"id {h.servo_id:>2}" if h.servo_id is not None else "     "
     if h.error is None:
         value = h.value_json()
@@ -33,7 +39,7 @@ def text_line(h: HeardTransaction) -> str:
         shown = f"! {h.error}"
     sent = h.sent.hex(" ")
     reply = h.reply.hex(" ") if h.reply else "-"
-    return f"{h.t:11.6f}  {who}  {h.kind:<24} {shown:<28} {sent} | {reply}"
+    return f"{h.t:11.6f}", f"{who}  {h.kind:<24} {shown:<28} {sent} | {reply}"
 
 
 class HeardOutput:
@@ -61,8 +67,11 @@ class HeardOutput:
                 sys.stdout.write(line + "\n")
                 sys.stdout.flush()
             else:
-                style = "yellow" if h.error else ""
-                out.print(f"[{style}]{escape(line)}[/{style}]" if style else escape(line), soft_wrap=True)
+                # On a terminal, wrapped at words with its further lines under the transaction, past its time (the
+                # label: the second space after it is said_labelled's own, the line as text_line's into a log).
+                at, heard_then = text_parts(h)
+                style = "[yellow]" if h.error else ""
+                say_labelled(f"{style}{escape(at)}", f"{style} {escape(heard_then)}", to=out)
             if self.file is not None:
                 self.file.write(line + "\n")
                 self.file.flush()
@@ -75,7 +84,7 @@ def listen(settings: Settings, listener: LineListener, output: HeardOutput, dura
     except IcsError as exc:
         raise translate(settings, exc) from None
     fd = posix_fd(ser)
-    err.print(f"[dim]listening on {escape(settings.port)} at {settings.baud} baud; Ctrl-C stops[/dim]")
+    say(f"[dim]listening on {escape(settings.port)} at {settings.baud} baud; Ctrl-C stops[/dim]")
     start = time.monotonic()
     try:
         while True:
@@ -150,7 +159,7 @@ def sniff(
             file.close()
     saved = f", written to {Path(output_path)}" if output_path else ""
     heard = f"{output.count} transaction{'' if output.count == 1 else 's'}"
-    err.print(f"[dim]{why}: {heard} heard ({output.unknown} unknown){escape(saved)}[/dim]")
+    say(f"[dim]{why}: {heard} heard ({output.unknown} unknown){escape(saved)}[/dim]")
     return 0
 
 

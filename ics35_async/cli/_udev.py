@@ -12,8 +12,8 @@ import click
 from rich.markup import escape
 
 from ..diagnose.udev import RELOAD_STEPS, RULES_PATH, rules_text, serial_group
-from ._common import CliError, ExitCode, ask_yes_no, err
-from ._console import say_labelled
+from ._common import CliError, ExitCode, ask_yes_no
+from ._console import say, say_labelled
 
 MANUAL = (
     "to do it by hand: save the rules (ics35 udev > 99-ics35-kondo.rules), "
@@ -62,7 +62,7 @@ def install(text: str, path: Path, yes: bool) -> None:
     if shutil.which("sudo") is None:
         raise CliError(ExitCode.PORT, f"{path} needs root to write, and there is no sudo here", MANUAL)
     command = ["sudo", "tee", str(path)]
-    err.print(f"writing {escape(str(path))} needs root: this would run  [bold]{' '.join(command)}[/bold]")
+    say(f"writing {escape(str(path))} needs root: this would run  [bold]{' '.join(command)}[/bold]")
     if not yes and not ask_yes_no("run it with sudo (it may ask for your password)?"):
         raise CliError(ExitCode.REFUSED, "not confirmed: nothing was written", MANUAL)
     try:
@@ -127,16 +127,16 @@ def udev(group: str | None, do_install: bool, path: Path, yes: bool) -> int:
             "pass --group with the group that owns serial ports here (ls -l /dev/ttyS0 names it)",
         )
     install(text, path, yes)
-    err.print(f"wrote {escape(str(path))}; now reload the rules:")
+    say(f"wrote {escape(str(path))}; now reload the rules:")
     for step in RELOAD_STEPS:
-        err.print(f"  {escape(step)}")
+        say(f"  {escape(step)}")
     if shutil.which("udevadm") is None:
         say_labelled(
             "[yellow]note:[/yellow]",
             "udevadm is not on this system (or not on PATH): udev may not run here"
             " (a container?); the rules act where udev runs, on the machine the adapter plugs into",
         )
-    err.print(
+    say(
         f"and make sure you are in group {escape(chosen)}: groups  (if not: sudo usermod -aG {escape(chosen)} "
         "$USER, then log in again)"
     )

@@ -10,8 +10,8 @@ from rich.markup import escape
 from ..errors import InvalidArgument
 from ..extras import extra_hint
 from ..terminal import clear_after_ctrl_c
-from ._common import CliError, ExitCode, err, settings_of
-from ._console import say_labelled
+from ._common import CliError, ExitCode, settings_of
+from ._console import say, say_labelled
 from ._loop import loop_factory, quiet_executor_shutdown
 from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option
@@ -78,11 +78,11 @@ def web(
         )
     line_from_robot = settings.port_defaulted and robot_file is not None
     if line_from_robot:
-        err.print("[dim]note: no --port given: the pages start on the robot's first line[/dim]")
+        say_labelled("[dim]note:[/dim]", "[dim]no --port given: the pages start on the robot's first line[/dim]")
     elif settings.port_defaulted:
-        err.print(
-            "[dim]note: no --port given: the page serves the built-in simulator (for hardware: --port "
-            "/dev/ttyUSB0)[/dim]"
+        say_labelled(
+            "[dim]note:[/dim]",
+            "[dim]no --port given: the page serves the built-in simulator (for hardware: --port /dev/ttyUSB0)[/dim]",
         )
     config = LineConfig(
         port=settings.port_to_open,
@@ -119,14 +119,14 @@ def web(
 
     def note(text: str) -> None:
         clear_after_ctrl_c()  # (said as the server stops: the ^C echoed before it goes)
-        err.print(f"[dim]{escape(text)}[/dim]", soft_wrap=True)
+        say(f"[dim]{escape(text)}[/dim]")
 
     def no_browser_opened() -> None:
         # (said once: the page is there all the same, at the address on stdout's first line)
-        err.print(
-            "[dim]note: no browser could be opened here: open the address above in one yourself "
+        say_labelled(
+            "[dim]note:[/dim]",
+            "[dim]no browser could be opened here: open the address above in one yourself "
             "(--no-browser: none is tried)[/dim]",
-            soft_wrap=True,
         )
 
     # A double Ctrl-C's later press may land as the server's event loop closes, cutting short its executor's
