@@ -149,6 +149,20 @@ def test_the_rate_searchs_lines_wrap_at_words(columns: int) -> None:
         assert sentence(screen, said_first[:20], "...") == said_first, screen
 
 
+def test_a_streams_warning_wraps_at_words_under_its_text() -> None:
+    # A paced stream that falls behind says so through logging, written whole: at 50 columns "... cannot keep rate_
+    # hz=100: 20 of its first 20 cycles ran past their slot (about 34 cyc" / "les/s); ...".
+    args = ["--port", "sim://?ids=0-31&realtime=1", "monitor", "0-31", "--free", "--rate", "100", "--seconds", "3"]
+    code, written = typed_on_a_terminal(args, [], columns=50)
+    screen = screen_of(written, width=50)
+    assert code == 0, screen
+    assert screen_of(written) == screen, screen  # (every line written fits: the terminal cut none)
+    (warning,) = [line for line in said(screen, "warning:") if line.startswith("stream of 32 IDs")]
+    assert re.fullmatch(
+        r"stream of 32 IDs cannot keep rate_hz=100: .*; at 115200 baud .* \(or the host is busy\)", warning
+    ), screen
+
+
 def test_the_commands_say_their_sentences_through_the_wrapping_helpers() -> None:
     # A sentence printed straight on a console (out.print(f"...")) is cut mid-word by a narrow terminal: the consoles
     # soft-wrap, so that a log gets each line whole.  say and say_labelled wrap it at words on a terminal only.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
+import logging
 import re
 import sys
 import weakref
@@ -31,7 +32,7 @@ from ..protocol.wire import id_runs as id_runs
 from ..protocol.wire import ids_named as ids_named
 from ..protocol.wire import no_servo_among as no_servo_among
 from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c, whole_writes
-from ._settings import CliError, ExitCode, Settings
+from ._settings import LIBRARY_QUIET, CliError, ExitCode, Settings
 from ._signals import same_stop_for_a_moment
 
 
@@ -542,6 +543,50 @@ def fitted_to(console: Console, head: Text, body: Text) -> Text:
             for k, line in enumerate(words_wrapped(body, width - indent))
         ]
     return Text("\n").join(lines)
+
+
+class _StreamWarnings(logging.Handler):
+    """Says a stream's warnings on stderr (``warning: ...``): a rate not kept, an ID silent to the watch read.
+    The command reports nothing of them itself, and without them a monitor asked for 100 Hz ran at 40 with not a
+    word why."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.module == "stream" and super().filter(record)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        # sys.stderr as it is now: while a live view runs, its proxy puts the line above the view (rich's own
+        # stderr console would write past it, and the view's next redraw would overwrite the line).  Wrapped at
+        # words on a terminal as the command's own warnings are (the proxy writes through the view's console).
+        try:
+            said = fitted_to(
+                out if isinstance(sys.stderr, FileProxy) else err, Text("warning: "), Text(record.getMessage())
+            )
+            sys.stderr.write(f"{said.plain}\n")
+            sys.stderr.flush()
+        except Exception:  # (a log record must never end the command)
+            self.handleError(record)
+
+
+_STREAM_WARNINGS = _StreamWarnings()
+
+
+@contextlib.contextmanager
+def stream_warnings_said() -> Iterator[None]:
+    """Within: a stream's warnings are said on stderr, where the library's records are otherwise quiet (without
+    -v, which logs them with everything else).  For the commands whose stream is theirs to tell of (monitor,
+    demo); the configurator's live stream runs at its line's own pace by design, and its page shows warnings."""
+    library = logging.getLogger("ics35_async")
+    quiet = LIBRARY_QUIET in library.handlers
+    if quiet:
+        library.addHandler(_STREAM_WARNINGS)
+    try:
+        yield
+    finally:
+        if quiet:
+            library.removeHandler(_STREAM_WARNINGS)
 
 
 def words_wrapped(text: Text, width: int) -> list[Text]:

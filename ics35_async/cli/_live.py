@@ -48,12 +48,12 @@ from ._console import (
     say,
     say_labelled,
     scan_progress,
+    stream_warnings_said,
     wrapped_at_width,
 )
 from ._live_view import LEAVE_OUT, LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
-from ._settings import stream_warnings_said
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]

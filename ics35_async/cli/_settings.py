@@ -20,8 +20,6 @@ from ..eeprom import FACTORY_BAUD
 from ..protocol.wire import ADAPTER_LATENCY, TOOL_RETRIES
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
-
     import click
 
     from ..bus import Bus
@@ -230,47 +228,8 @@ def settings_of(ctx: click.Context) -> Settings:
     return obj if obj is not None else Settings()
 
 
-_QUIET = logging.NullHandler()
-
-
-class _StreamWarnings(logging.Handler):
-    """Says a stream's warnings on stderr (``warning: ...``): a rate not kept, an ID silent to the watch read.
-    The command reports nothing of them itself, and without them a monitor asked for 100 Hz ran at 40 with not a
-    word why."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return record.module == "stream" and super().filter(record)
-
-    def emit(self, record: logging.LogRecord) -> None:
-        # sys.stderr as it is now: while a live view runs, its proxy puts the line above the view (rich's own
-        # stderr console would write past it, and the view's next redraw would overwrite the line).
-        try:
-            sys.stderr.write(f"warning: {record.getMessage()}\n")
-            sys.stderr.flush()
-        except Exception:  # (a log record must never end the command)
-            self.handleError(record)
-
-
-_STREAM_WARNINGS = _StreamWarnings()
-
-
-@contextlib.contextmanager
-def stream_warnings_said() -> Iterator[None]:
-    """Within: a stream's warnings are said on stderr, where the library's records are otherwise quiet (without
-    -v, which logs them with everything else).  For the commands whose stream is theirs to tell of (monitor,
-    demo); the configurator's live stream runs at its line's own pace by design, and its page shows warnings."""
-    library = logging.getLogger("ics35_async")
-    quiet = _QUIET in library.handlers
-    if quiet:
-        library.addHandler(_STREAM_WARNINGS)
-    try:
-        yield
-    finally:
-        if quiet:
-            library.removeHandler(_STREAM_WARNINGS)
+# On the library's logger without -v: its records said by the command itself, or not at all.
+LIBRARY_QUIET = logging.NullHandler()
 
 
 def _after_ctrl_c(record: logging.LogRecord) -> bool:
@@ -285,9 +244,9 @@ def setup_logging(verbose: int) -> None:
     if not verbose:
         # The library logs a lost port as a warning, which Python's last-resort handler would
         # print; the command reports it itself, once.  (Configured handlers still get records.)
-        logging.getLogger("ics35_async").addHandler(_QUIET)
+        logging.getLogger("ics35_async").addHandler(LIBRARY_QUIET)
         return
-    logging.getLogger("ics35_async").removeHandler(_QUIET)
+    logging.getLogger("ics35_async").removeHandler(LIBRARY_QUIET)
     level = logging.DEBUG if verbose > 1 else logging.INFO
     root = logging.getLogger()
     ours = not root.handlers  # (a program that set up logging itself keeps its own handlers as they are)
