@@ -149,6 +149,32 @@ def test_the_rate_searchs_lines_wrap_at_words(columns: int) -> None:
         assert sentence(screen, said_first[:20], "...") == said_first, screen
 
 
+@pytest.mark.parametrize(
+    "args",
+    [["get", "--bogus"], ["get", "1", "bogus"], ["eeprom", "restore"], ["sim", "--bogus", "--also-bogus", "--more"]],
+    ids=" ".join,
+)
+def test_a_usage_error_wraps_at_words_with_its_text_and_exit_code_kept(args: list[str]) -> None:
+    # At 40 columns: "Error: No such option '--bogus'. (Did yo" / "u mean one of: '--baud', '--verbose'?)", as
+    # click writes it; its usage, laid out for 50 columns at least, and "Try 'ics35 eeprom restore --help' for h" /
+    # "elp." were cut too.
+    logged = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "40"},
+    )
+    assert logged.returncode == ExitCode.USAGE, logged.stderr
+    (error,) = [line.removeprefix("Error: ") for line in logged.stderr.splitlines() if line.startswith("Error: ")]
+    code, written = typed_on_a_terminal(args, [], columns=40)
+    screen = screen_of(written, width=40)
+    assert code == ExitCode.USAGE, screen
+    assert screen_of(written) == screen, screen  # (every line written fits: the terminal cut none)
+    assert " ".join(screen).split() == logged.stderr.split(), screen  # (the same words, none cut in two)
+    assert said(screen, "Error:") == [error], screen
+
+
 def test_a_streams_warning_wraps_at_words_under_its_text() -> None:
     # A paced stream that falls behind says so through logging, written whole: at 50 columns "... cannot keep rate_
     # hz=100: 20 of its first 20 cycles ran past their slot (about 34 cyc" / "les/s); ...".

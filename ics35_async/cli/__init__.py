@@ -181,7 +181,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         # (a Ctrl-C has one name wherever it lands, not click's "aborted"; click wrote a newline on stderr first)
         _interrupted("interrupted", newline_on_stderr=isinstance(exc.__cause__, KeyboardInterrupt))
     except click.ClickException as exc:
-        exc.show()
+        from ._console import say_click_error
+
+        say_click_error(exc)
         sys.exit(exc.exit_code)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)

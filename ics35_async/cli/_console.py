@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import io
 import json
 import logging
 import re
@@ -502,6 +503,27 @@ def say_error(error: CliError) -> None:
     say_labelled("[bold red]error:[/bold red]", escape(error.message))
     for hint in error.hints:
         say_labelled("  [cyan]hint:[/cyan]", escape(hint))
+
+
+def say_click_error(error: click.ClickException) -> None:
+    """click's own error (a usage error: the command's usage, the help hint, ``Error: ...``) in click's words on
+    stderr.  On a terminal, wrapped at words to its width (``Error:`` as a label, see :func:`say_labelled`): click
+    writes the error whole, for the terminal to cut mid-word, and lays the usage out for 50 columns at least.  Into
+    a log, as click writes it."""
+    if not err.is_terminal:
+        error.show()
+        return
+    context = getattr(error, "ctx", None)
+    if isinstance(context, click.Context):  # (click's own margin of two columns, without its 50 at least)
+        context.terminal_width = max(min(err.width, context.max_content_width or 80) - 2, 1)
+    shown = io.StringIO()
+    error.show(shown)
+    for line in shown.getvalue().splitlines():
+        label, _, text = line.partition(" ")
+        if label == "Error:":
+            say_labelled(label, escape(text))
+        else:
+            say(escape(line))
 
 
 # The fewest columns a labelled line's text is wrapped to beside its label: on a terminal narrower still, its
