@@ -1634,10 +1634,10 @@ def test_ctrl_c_while_a_live_command_asks_its_ids_says_at_once_what_it_waits_for
     said = "\n".join(screen)
     assert code == 130 and "Traceback" not in written, said
     stopping = next(k for k, line in enumerate(screen) if line.startswith("stopping:"))
-    assert "up to 5 s" in screen[stopping] and "Ctrl-C again leaves at once" in screen[stopping], said
-    assert screen[stopping + 1 :] == [
-        f"error: interrupted while {asked}: nothing was sent that moves or frees a servo"
-    ], said
+    error = next(k for k in range(stopping, len(screen)) if screen[k].startswith("error:"))
+    told = " ".join(screen[stopping:error])  # (wrapped at words at the terminal's width)
+    assert "up to 5 s" in told and "Ctrl-C again leaves at once" in told, said
+    assert screen[error:] == [f"error: interrupted while {asked}: nothing was sent that moves or frees a servo"], said
     if asked == "scanning":  # (and how far, in the words and the bar of `ics35 scan`, gone once it ends)
         assert re.search(r"scanning +115200 baud\S*\s.*\b0/32\b", written), written
         assert not any("/32" in line for line in screen), said
