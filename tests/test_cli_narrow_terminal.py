@@ -222,3 +222,18 @@ def _words(expression: ast.expr) -> bool:
     return isinstance(expression, ast.JoinedStr) or (
         isinstance(expression, ast.Call) and ast.unparse(expression.func) == "escape"
     )
+
+
+def test_the_version_with_verbose_wraps_at_words() -> None:
+    # At 40 columns: "compiled stream path: on (streams on ser" / "ial ports run in ...", as click.echo wrote it.
+    logged = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--version", "-v"], capture_output=True, text=True, timeout=60
+    )
+    assert logged.returncode == 0 and "compiled stream path" in logged.stdout, logged.stderr
+    code, written = typed_on_a_terminal(["--version", "-v"], [], columns=40)
+    screen = screen_of(written, width=40)
+    assert code == 0, screen
+    assert screen_of(written) == screen, screen  # (every line written fits: the terminal cut none)
+    # The same words, none cut in two but one wider than the terminal (the platform's name), cut where it must.
+    words = [word[k : k + 40] for word in logged.stdout.split() for k in range(0, len(word), 40)]
+    assert " ".join(screen).split() == words, screen

@@ -107,14 +107,17 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
     if any(a == "--verbose" or (a.startswith("-v") and set(a[1:]) == {"v"}) for a in argv):
         import platform
 
+        from rich.markup import escape
+
         from ..compiled import ENGINE_NAME, engine_compiled
         from ..drivers.burst import PATH_NAME, burst_path
         from ..drivers.fine_timer import TIMER_NAME, fine_deadlines
+        from ._console import out, say  # (with -v only: the plain version stays quick)
 
-        click.echo(f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}")
-        click.echo(f"{PATH_NAME}: {burst_path()[1]}")
-        click.echo(f"{ENGINE_NAME}: {engine_compiled()[1]}")
-        click.echo(f"{TIMER_NAME}: {fine_deadlines()[1]}")
+        python = f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}"
+        for line in (python, f"{PATH_NAME}: {burst_path()[1]}", f"{ENGINE_NAME}: {engine_compiled()[1]}"):
+            say(escape(line), to=out)
+        say(escape(f"{TIMER_NAME}: {fine_deadlines()[1]}"), to=out)
     ctx.exit()
 
 
