@@ -1975,6 +1975,30 @@ def test_play_shows_no_temperature_or_current_for_a_joint_whose_telemetry_reads_
     assert re.fullmatch(r"\d+C", rows["neck"][-3]) and rows["neck"][-2].isdigit(), result.out  # (still read)
 
 
+def test_play_says_once_that_a_guarded_joint_whose_telemetry_does_not_read_is_not_guarded(
+    cli: Any, tmp_path: Path
+) -> None:
+    # The robot file sets max_temperature_c; the hip's temperature and current reads went unanswered mid-motion
+    # while its servo answered its position commands: its row showed "-", and nothing said the limit guarded it
+    # no longer (the library's warning went to a quiet logger).
+    sims = make_rig(safety={"max_temperature_c": 70})
+    try:
+        robot_file, motion = playing_on_past_offline(sims, tmp_path)
+        hip = sims.lower.servo(JOINTS["hip"]["id"])
+        once_its_telemetry_answered(
+            sims.lower, JOINTS["hip"]["id"], lambda: setattr(hip, "ignores", frozenset(TELEMETRY_READS))
+        )
+        result = cli("play", str(robot_file), str(motion))
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    said = [line for line in result.err.splitlines() if line.startswith("warning:")]
+    assert len(said) == 1, result.err  # (once for the stretch, not once a failed read)
+    text = " ".join(result.err[result.err.index("warning:") :].split())
+    assert "joint hip (line lower, ID" in text and "cannot hold it to max_temperature_c 70" in text, text
+    assert "Traceback" not in result.err
+
+
 @pytest.mark.parametrize("loop", [False, True])
 def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp_path: Path, loop: bool) -> None:
     # With continue_on_offline the motion plays on without a servo unplugged mid-motion; plugged back, the motion

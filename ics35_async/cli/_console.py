@@ -567,16 +567,17 @@ def fitted_to(console: Console, head: Text, body: Text) -> Text:
     return Text("\n").join(lines)
 
 
-class _StreamWarnings(logging.Handler):
-    """Says a stream's warnings on stderr (``warning: ...``): a rate not kept, an ID silent to the watch read.
-    The command reports nothing of them itself, and without them a monitor asked for 100 Hz ran at 40 with not a
-    word why."""
+class _LibraryWarnings(logging.Handler):
+    """Says the library's warnings from ``modules`` on stderr (``warning: ...``), which the command does not report
+    itself: a stream's (a rate not kept, an ID silent to the watch read: without them a monitor asked for 100 Hz
+    ran at 40 with not a word why), a robot's safety watch's (a guarded joint whose telemetry does not read)."""
 
-    def __init__(self) -> None:
+    def __init__(self, modules: frozenset[str]) -> None:
         super().__init__(logging.WARNING)
+        self.modules = modules
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return record.module == "stream" and super().filter(record)
+        return record.module in self.modules and super().filter(record)
 
     def emit(self, record: logging.LogRecord) -> None:
         # sys.stderr as it is now: while a live view runs, its proxy puts the line above the view (rich's own
@@ -592,23 +593,23 @@ class _StreamWarnings(logging.Handler):
             self.handleError(record)
 
 
-_STREAM_WARNINGS = _StreamWarnings()
-
-
 @contextlib.contextmanager
-def stream_warnings_said() -> Iterator[None]:
-    """Within: a stream's warnings are said on stderr, where the library's records are otherwise quiet (without
-    -v, which logs them with everything else).  For the commands whose stream is theirs to tell of (monitor,
-    demo); the configurator's live stream runs at its line's own pace by design, and its page shows warnings."""
+def library_warnings_said(*modules: str) -> Iterator[None]:
+    """Within: the library's warnings from ``modules`` (``"stream"``, ``"safety"``) are said on stderr, where its
+    records are otherwise quiet (without -v, which logs them with everything else).  For the commands whose
+    stream or robot is theirs to tell of (monitor and demo: ``"stream"``; play, teach and calibrate: ``"safety"``,
+    their trips said in their own words); the configurator's live stream runs at its line's own pace by design,
+    and its page shows warnings."""
     library = logging.getLogger("ics35_async")
     quiet = LIBRARY_QUIET in library.handlers
+    handler = _LibraryWarnings(frozenset(modules))
     if quiet:
-        library.addHandler(_STREAM_WARNINGS)
+        library.addHandler(handler)
     try:
         yield
     finally:
         if quiet:
-            library.removeHandler(_STREAM_WARNINGS)
+            library.removeHandler(handler)
 
 
 def words_wrapped(text: Text, width: int) -> list[Text]:

@@ -43,12 +43,12 @@ from ._common import (
 from ._console import (
     LiveTable,
     ids_argument,
+    library_warnings_said,
     live_view,
     printed_table,
     say,
     say_labelled,
     scan_progress,
-    stream_warnings_said,
     wrapped_at_width,
 )
 from ._live_view import LEAVE_OUT, LiveState
@@ -156,7 +156,7 @@ async def run_live(
     # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
     commanded = [i for i in ids if i not in watch] if options.with_targets and options.free_at_end else []
     freed = not commanded
-    with stream_warnings_said():  # (a rate not kept: the stream's warning says so and why)
+    with library_warnings_said("stream"):  # (a rate not kept: the stream's warning says so and why)
         try:
             if live is not None:
                 live.start()
