@@ -485,3 +485,28 @@ def test_a_streams_reply_late_by_more_than_the_links_extra_is_not_taken_after_th
     state.advance(dt=0.3)
     state.each_request_ends_at_most_once_with_its_own_value()
     state.teardown()
+
+
+def test_a_guard_read_twin_of_an_unheard_guard_read_leaves_the_stalls_backlog_suspect() -> None:
+    # Found by the model (short allowance): a one-servo stream's free command answered late (heard), its guard read
+    # (a2 01) sent as the far end stalled, got nothing; the stream's command after it got nothing either; the next
+    # guard read, the first one's twin, took the first one's echo and reply as they came, and that echo, taken for
+    # its own, cleared every command remembered without its echo: the stream's next free command then took the
+    # stalled one's reply (value 4 for write 4, answered 6).  The replay of the steps hypothesis found.
+    state = ShortAllowanceLineModel()
+
+    def step(rule: str, **args: object) -> None:
+        getattr(state, rule)(**args)
+        state.counters_add_up()
+        state.each_request_ends_at_most_once_with_its_own_value()
+        state.state_and_deadline()
+
+    step("open_line", echo=True, share=1)
+    step("noise", n=1)
+    step("advance", dt=0.001)
+    step("inject", batch=[("late", 0.75, [])])
+    step("inject", batch=[("stall", 0.75, [])])
+    step("advance", dt=0.3)
+    step("attach_stream", ids=[2], paced=True)
+    step("advance", dt=0.3)
+    state.teardown()

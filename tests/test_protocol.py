@@ -926,6 +926,15 @@ def test_guard_read_differs_in_reply_shape_from_the_command_it_guards() -> None:
             guard.parse(late)
 
 
+def test_guard_read_is_not_one_of_the_commands_whose_answer_may_still_come() -> None:
+    # A guard identical to a command sent whose echo never came back would take that command's late answer for its
+    # own (the engine then took the bytes after it for the next command's).
+    position, stretch = protocol.Position(4, 7500, baudrate=115200).tx, bytes.fromhex("a4 01")
+    assert protocol.guard_read(position, 4, {stretch}).tx == bytes.fromhex("a4 02")
+    assert protocol.guard_read(stretch, 4, {bytes.fromhex("a4 02")}).tx == bytes.fromhex("a4 02")  # (none other)
+    assert protocol.guard_read(position, 4, {stretch, bytes.fromhex("a4 02")}).tx == stretch  # (both: the first)
+
+
 def _sample_value(command: protocol.Command[Any]) -> Any:
     if isinstance(command, protocol.ReadEeprom):
         return Eeprom.factory(4)

@@ -12,6 +12,7 @@ rate as an explicit argument.
 
 from __future__ import annotations
 
+from collections.abc import Container
 from typing import ClassVar, Generic, TypeVar
 
 from ..eeprom import EEPROM_SIZE, Eeprom
@@ -313,14 +314,22 @@ class GuardRead(ReadParam):
     silence = "no reply to the guard read: the servo that did not answer just before is silent still"
 
 
-def guard_read(tx: bytes, servo_id: int) -> ReadParam:
+def guard_read(tx: bytes, servo_id: int, avoid: Container[bytes] = ()) -> ReadParam:
     """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
 
     A parameter read of another sub-command: a late reply to ``tx`` fails its
-    header, sub-command or length check.
+    header, sub-command or length check.  Not one of ``avoid`` either, where the other
+    read will do: commands sent whose echo and reply may still come (see the engine's
+    guard rule), whose late answer a guard identical to one would take for its own.
     """
-    same_as_stretch_read = tx[:2] == bytes((CMD_READ | servo_id, Param.STRETCH))
-    return GuardRead(servo_id, Param.SPEED if same_as_stretch_read else Param.STRETCH)
+    own = tx[:2]
+    stretch_first = own != bytes((CMD_READ | servo_id, Param.STRETCH))
+    order = (Param.STRETCH, Param.SPEED) if stretch_first else (Param.SPEED, Param.STRETCH)
+    for param in order:
+        candidate = bytes((CMD_READ | servo_id, param))
+        if candidate != own and candidate not in avoid:
+            return GuardRead(servo_id, param)
+    return GuardRead(servo_id, order[0])
 
 
 class ReadEeprom(Command[Eeprom]):
