@@ -12,7 +12,6 @@ import pytest
 
 from ics35_async import protocol
 from ics35_async.engine import FlushInput, Priority, State
-from ics35_async.engine.guard import GuardRule
 from ics35_async.errors import ReplyTimeout
 from ics35_async.protocol import Param, guard_read
 from tests.support.engine_support import (
@@ -155,21 +154,6 @@ def test_a_stalled_line_hands_a_stream_no_reply_of_an_earlier_transaction() -> N
         wire.emit(engine.attach_source(source, 0.0))
         wire.run_for(0.5)
     assert not taken, "\n".join(taken[:5])
-
-
-def test_an_echo_that_may_be_an_older_twins_leaves_the_commands_sent_after_that_twin_suspect() -> None:
-    # Three commands got nothing back (a far end that stalls); an echo of the first one's bytes then came: it may be
-    # that first one's own, late, so the second's echo and reply may still come, and its twin needs a guard.
-    rule = GuardRule()
-    first, second, third = read(3).tx, position(5).tx, read(4).tx
-    for tx in (first, second, third):
-        rule.echo_came(tx, False)
-    rule.echo_came(first, True)
-    assert rule.unheard == (first, second, third)
-    rule.echo_came(second, True)
-    assert rule.unheard == (second, third)
-    rule.echo_came(read(6).tx, True)  # (a command not remembered: its own echo, so every older one is gone)
-    assert rule.unheard == ()
 
 
 def test_a_line_that_never_answers_fails_a_request_after_its_attempts() -> None:

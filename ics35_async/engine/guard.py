@@ -22,10 +22,12 @@ remembered (``unheard``) until a command's own echo comes back: bytes come in
 order, so nothing older can still come after it.  Until then a command identical
 to one of them would take that one's echo and reply for its own, and gets a
 guard read first, itself not identical to one of them where the other guard read
-will do (a guard that took a remembered twin's answer would prove nothing); the
-echo of a command identical to one remembered may be that one's, so the commands
-sent after that one stay remembered.  A guard read that gets nothing back either shows nothing, and
-counts as one of the tries of the command it went before (see the engine), so
+will do: a guard that took a remembered twin's echo and reply for its own would
+clear the commands remembered after that twin, whose bytes may still come (with
+both guard reads of that servo remembered, the first one goes all the same: a
+guard that could never clear them would hold the command back for ever).  A
+guard read that gets nothing back either shows nothing, and counts as one of the
+tries of the command it went before (see the engine), so
 a line that answers nothing still fails that command after its tries.  (On a
 line without echo nothing tells a stall from a silent servo: the rule is for
 lines with echo.)
@@ -65,8 +67,7 @@ class GuardRule:
         bytes, if those were another command's identical ones (see above)."""
         unheard = self.unheard
         if came:
-            # An echo of a command remembered may be the oldest twin's: those sent after it may still come.
-            self.unheard = unheard[unheard.index(tx) :] if tx in unheard else ()
+            self.unheard = (tx,) if tx in unheard else ()
         elif tx not in unheard:
             self.unheard = (*unheard[1 - UNHEARD_KEPT :], tx) if len(unheard) >= UNHEARD_KEPT else (*unheard, tx)
 
