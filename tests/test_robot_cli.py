@@ -1948,22 +1948,28 @@ def test_play_shows_no_target_temperature_or_current_for_a_joint_gone_offline(cl
     assert rows["hip"][2] == "-" and rows["neck"][2] == "+20.0", result.out  # (the neck's end: sent)
 
 
-def test_play_shows_no_temperature_or_current_for_a_joint_whose_telemetry_reads_keep_failing(
-    cli: Any, tmp_path: Path
-) -> None:
-    # The hip's servo answered every position command, but its temperature and current reads went unanswered once
-    # they had answered: its row went on showing the temperature and current read then, as if read now.
-    sims = make_rig()
+def play_with_the_hips_telemetry_failing(cli: Any, tmp_path: Path, sims: Any) -> tuple[Any, Any]:
+    """``ics35 play`` of a motion of neck and hip on ``sims`` (a rig), the hip's temperature and current reads
+    unanswered once they have answered (its position commands answered throughout); the result and the rig."""
     try:
         robot_file, motion = playing_on_past_offline(sims, tmp_path)
         hip = sims.lower.servo(JOINTS["hip"]["id"])
         once_its_telemetry_answered(
             sims.lower, JOINTS["hip"]["id"], lambda: setattr(hip, "ignores", frozenset(TELEMETRY_READS))
         )
-        result = cli("play", str(robot_file), str(motion))
+        return cli("play", str(robot_file), str(motion)), sims
     finally:
         sims.close()
+
+
+def test_play_shows_no_temperature_or_current_for_a_joint_whose_telemetry_reads_keep_failing(
+    cli: Any, tmp_path: Path
+) -> None:
+    # The hip's servo answered every position command, but its temperature and current reads went unanswered once
+    # they had answered: its row went on showing the temperature and current read then, as if read now.
+    result, sims = play_with_the_hips_telemetry_failing(cli, tmp_path, make_rig())
     assert result.code == 0, result.err
+    hip = sims.lower.servo(JOINTS["hip"]["id"])
     silent = [t for t in sims.lower.log_since(0) if t.command in TELEMETRY_READS and t.servo_id == hip.servo_id]
     assert sum(not t.reply for t in silent) >= 2, silent  # (read, then failing)
     rows = {
@@ -1981,16 +1987,7 @@ def test_play_says_once_that_a_guarded_joint_whose_telemetry_does_not_read_is_no
     # The robot file sets max_temperature_c; the hip's temperature and current reads went unanswered mid-motion
     # while its servo answered its position commands: its row showed "-", and nothing said the limit guarded it
     # no longer (the library's warning went to a quiet logger).
-    sims = make_rig(safety={"max_temperature_c": 70})
-    try:
-        robot_file, motion = playing_on_past_offline(sims, tmp_path)
-        hip = sims.lower.servo(JOINTS["hip"]["id"])
-        once_its_telemetry_answered(
-            sims.lower, JOINTS["hip"]["id"], lambda: setattr(hip, "ignores", frozenset(TELEMETRY_READS))
-        )
-        result = cli("play", str(robot_file), str(motion))
-    finally:
-        sims.close()
+    result, _ = play_with_the_hips_telemetry_failing(cli, tmp_path, make_rig(safety={"max_temperature_c": 70}))
     assert result.code == 0, result.err
     said = [line for line in result.err.splitlines() if line.startswith("warning:")]
     assert len(said) == 1, result.err  # (once for the stretch, not once a failed read)
