@@ -955,6 +955,16 @@ def test_the_live_plots_start_an_id_their_probes_found_silent_offline(serve: Any
     assert [t.command for t in log[frees[0] : frees[3]] if t.servo_id == 5] == []
 
 
+def live_frame_when(client: Any, done: Any, deadline: float) -> dict[str, Any]:
+    """The Live plots' newest frame once ``done(frame)`` holds (polled until ``deadline``)."""
+    while time.monotonic() < deadline:
+        frame = client.get("/api/live").json()
+        if frame is not None and done(frame):
+            return frame  # type: ignore[no-any-return]
+        time.sleep(0.01)
+    raise AssertionError("no such frame")
+
+
 def test_the_live_plots_show_no_current_or_temperature_of_a_servo_gone_offline_until_read_again(serve: Any) -> None:
     # The plots (and the Line page's rows, from the same readings) kept an unplugged servo's last temperature and
     # current, sent with every frame as if read then, and once it answered again until it was read anew (it may
@@ -964,12 +974,7 @@ def test_the_live_plots_show_no_current_or_temperature_of_a_servo_gone_offline_u
     deadline = time.monotonic() + GUARD
 
     def frame_when(done: Any) -> dict[str, Any]:
-        while time.monotonic() < deadline:
-            frame = client.get("/api/live").json()
-            if frame is not None and done(frame):
-                return frame  # type: ignore[no-any-return]
-            time.sleep(0.01)
-        raise AssertionError("no such frame")
+        return live_frame_when(client, done, deadline)
 
     frame_when(lambda f: "3" in f["temperature"] and "3" in f["current"])
     servo = sim.remove_servo(3)
@@ -1004,12 +1009,7 @@ def test_the_live_plots_and_the_line_page_show_no_current_or_temperature_whose_r
     deadline = time.monotonic() + GUARD
 
     def frame_when(done: Any) -> dict[str, Any]:
-        while time.monotonic() < deadline:
-            frame = client.get("/api/live").json()
-            if frame is not None and done(frame):
-                return frame  # type: ignore[no-any-return]
-            time.sleep(0.01)
-        raise AssertionError("no such frame")
+        return live_frame_when(client, done, deadline)
 
     def silent_reads() -> int:
         return sum(1 for t in sim.log_since(0) if t.servo_id == 3 and t.command == "read_temperature" and not t.reply)
