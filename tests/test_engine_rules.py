@@ -5,6 +5,7 @@ Plain calls and simulated time only (see engine_support): no event loop.
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -132,6 +133,36 @@ def test_a_stalled_line_hands_no_request_an_older_twins_reply_past_another_comma
         for req in (first, twin):
             if req.state == "done" and (problem := misattributed(req, servos)) is not None:
                 taken.append(f"stalled {stall * 1e3:.0f} ms: {problem}; sent {[tx.hex(' ') for tx in wire.sent()]}")
+    assert not taken, "\n".join(taken[:5])
+
+
+@pytest.mark.parametrize("retries", [0, 1])
+def test_a_stalled_line_hands_no_command_another_ones_reply_whatever_went_between(retries: int) -> None:
+    # Three commands sent in one stall, in every order, of a servo's reads in both guard reads' shapes (stretch,
+    # speed), its current read, a move, another servo's read: a guard read going then must be a twin of none of
+    # them but the last, whose echo and reply, taken for its own, show that every older one's came first (found:
+    # a speed read after two stretch reads, or after a current read and a stretch read, took a late reply).
+    commands = {
+        "stretch": read(3, Param.STRETCH),
+        "speed": read(3, Param.SPEED),
+        "current": read(3, Param.CURRENT),
+        "move": position(3),
+        "other": read(4),
+    }
+    taken = []
+    for names in itertools.product(commands, repeat=3):
+        for stall in STALLS[::3]:
+            engine = ready_engine()
+            servos = StalledPipe({3, 4}, 0.0, stall)
+            wire = Wire(engine, servos)
+            sent = [Recorded(commands[name], retries=retries, wire=wire) for name in names]
+            for req in sent:
+                wire.submit(req)
+            wire.settle()
+            for req in sent:
+                if req.state == "done" and (problem := misattributed(req, servos)) is not None:
+                    writes = [tx.hex(" ") for tx in wire.sent()]
+                    taken.append(f"{names} stalled {stall * 1e3:.0f} ms: {problem}; sent {writes}")
     assert not taken, "\n".join(taken[:5])
 
 

@@ -929,10 +929,24 @@ def test_guard_read_differs_in_reply_shape_from_the_command_it_guards() -> None:
 def test_guard_read_is_not_one_of_the_commands_whose_answer_may_still_come() -> None:
     # A guard identical to a command sent whose echo never came back would take that command's late answer for its
     # own (the engine then took the bytes after it for the next command's).
-    position, stretch = protocol.Position(4, 7500, baudrate=115200).tx, bytes.fromhex("a4 01")
-    assert protocol.guard_read(position, 4, {stretch}).tx == bytes.fromhex("a4 02")
-    assert protocol.guard_read(stretch, 4, {bytes.fromhex("a4 02")}).tx == bytes.fromhex("a4 02")  # (none other)
-    assert protocol.guard_read(position, 4, {stretch, bytes.fromhex("a4 02")}).tx == stretch  # (both: the first)
+    position, stretch, speed = (
+        protocol.Position(4, 7500, baudrate=115200).tx,
+        bytes.fromhex("a4 01"),
+        bytes.fromhex("a4 02"),
+    )
+    assert protocol.guard_read(position, 4, [stretch]).tx == speed
+    # Both of them: a twin of the last one sent (taking its echo and reply shows that every older one's came first).
+    assert protocol.guard_read(position, 4, [stretch, speed]).tx == speed
+    assert protocol.guard_read(position, 4, [speed, stretch]).tx == stretch
+    assert protocol.guard_read(stretch, 4, [speed]).tx == speed  # (the last; no other but stretch itself)
+    # Otherwise a read of another servo (its header fails a late reply from this one): one the line talked to first.
+    assert protocol.guard_read(stretch, 4, [speed, stretch]).tx == bytes.fromhex("a0 01")  # (never its own shape)
+    seven = bytes.fromhex("a7 01")
+    assert protocol.guard_read(position, 4, [seven, stretch, speed, position]).tx == bytes.fromhex("a7 02")
+    # However many are remembered (the engine keeps 32), one is free.
+    others = [bytes((0xA0 | i, p)) for i in range(32) if i != 4 for p in (1, 2)][:29]
+    guard = protocol.guard_read(position, 4, [*others, stretch, speed, position]).tx
+    assert guard not in others and guard[0] & 0x1F != 4
 
 
 def _sample_value(command: protocol.Command[Any]) -> Any:

@@ -18,19 +18,21 @@ A command that got nothing back at all, not even its echo (a far end that
 stalls: an adapter or a bridge holding bytes, a simulator not yet scheduled),
 says nothing of the line: its echo and reply may still come whole, and with
 them those of any command before it that got nothing either.  Such commands are
-remembered (``unheard``) until a command's own echo comes back: bytes come in
-order, so nothing older can still come after it.  Until then a command identical
-to one of them would take that one's echo and reply for its own, and gets a
-guard read first, itself not identical to one of them where the other guard read
-will do: a guard that took a remembered twin's echo and reply for its own would
-clear the commands remembered after that twin, whose bytes may still come (with
-both guard reads of that servo remembered, the first one goes all the same: a
-guard that could never clear them would hold the command back for ever).  A
-guard read that gets nothing back either shows nothing, and counts as one of the
-tries of the command it went before (see the engine), so
-a line that answers nothing still fails that command after its tries.  (On a
-line without echo nothing tells a stall from a silent servo: the rule is for
-lines with echo.)
+remembered (``unheard``, in the order last sent) until a command's own echo
+comes back: bytes come in order, so nothing older can still come after it.
+Until then a command identical to one of them would take that one's echo and
+reply for its own, and gets a guard read first, itself identical to none of
+them: a guard that took a remembered twin's echo and reply for its own would
+clear the commands remembered after that twin, whose bytes may still come.  So
+with both of that servo's guard reads remembered, the guard is a twin of the
+last command remembered if that is one of them (taking its echo and reply shows
+that every older one's came first, and none remembered went after it), otherwise a
+read of another servo (a late reply from this one fails it by its header; see
+:func:`~ics35_async.protocol.guard_read`).  A guard read that gets nothing back
+either shows nothing, and counts as one of the tries of the command it went
+before (see the engine), so a line that answers nothing still fails that
+command after its tries.  (On a line without echo nothing tells a stall from a
+silent servo: the rule is for lines with echo.)
 
 A command to a servo already found silent (``Timing.SILENT``: a closing
 stream's free to an offline servo) goes without a guard read: its reply
@@ -68,7 +70,9 @@ class GuardRule:
         unheard = self.unheard
         if came:
             self.unheard = (tx,) if tx in unheard else ()
-        elif tx not in unheard:
+        else:  # (kept in the order last sent: a guard may be a twin of the last one, see above)
+            if tx in unheard:
+                unheard = tuple(u for u in unheard if u != tx)
             self.unheard = (*unheard[1 - UNHEARD_KEPT :], tx) if len(unheard) >= UNHEARD_KEPT else (*unheard, tx)
 
     def before(self, tx: bytes, servo_id: int | None) -> ReadParam | None:

@@ -12,7 +12,7 @@ rate as an explicit argument.
 
 from __future__ import annotations
 
-from collections.abc import Container
+from collections.abc import Sequence
 from typing import ClassVar, Generic, TypeVar
 
 from ..eeprom import EEPROM_SIZE, Eeprom
@@ -314,13 +314,19 @@ class GuardRead(ReadParam):
     silence = "no reply to the guard read: the servo that did not answer just before is silent still"
 
 
-def guard_read(tx: bytes, servo_id: int, avoid: Container[bytes] = ()) -> ReadParam:
+def guard_read(tx: bytes, servo_id: int, avoid: Sequence[bytes] = ()) -> ReadParam:
     """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
 
     A parameter read of another sub-command: a late reply to ``tx`` fails its
-    header, sub-command or length check.  Not one of ``avoid`` either, where the other
-    read will do: commands sent whose echo and reply may still come (see the engine's
-    guard rule), whose late answer a guard identical to one would take for its own.
+    header, sub-command or length check.  Not one of ``avoid`` either: commands sent
+    whose echo and reply may still come, in the order sent (see the engine's guard
+    rule), whose late answer a guard identical to one would take for its own.
+    Where both of ``servo_id``'s reads are among them, the one identical to the
+    last of them if it is one (bytes come in order: a guard that takes the last
+    one's echo and reply shows that every older one's came first); otherwise a
+    read of another servo, which a late reply from ``servo_id`` fails by its
+    header (first the servos ``avoid`` addressed, last first: those are on the
+    line, and a read of an absent one waits out its whole allowance).
     """
     own = tx[:2]
     stretch_first = own != bytes((CMD_READ | servo_id, Param.STRETCH))
@@ -329,7 +335,19 @@ def guard_read(tx: bytes, servo_id: int, avoid: Container[bytes] = ()) -> ReadPa
         candidate = bytes((CMD_READ | servo_id, param))
         if candidate != own and candidate not in avoid:
             return GuardRead(servo_id, param)
-    return GuardRead(servo_id, order[0])
+    last = avoid[-1] if avoid else b""
+    for param in order:
+        candidate = bytes((CMD_READ | servo_id, param))
+        if candidate == last and candidate != own:
+            return GuardRead(servo_id, param)
+    others = dict.fromkeys(sent[0] & MAX_ID for sent in reversed(avoid) if sent)
+    others.update(dict.fromkeys(range(MAX_ID + 1)))
+    others.pop(servo_id, None)
+    for other in others:
+        for param in (Param.STRETCH, Param.SPEED):
+            if bytes((CMD_READ | other, param)) not in avoid:
+                return GuardRead(other, param)
+    return GuardRead(servo_id, order[0])  # (never: ``avoid`` as the engine keeps it is shorter than that)
 
 
 class ReadEeprom(Command[Eeprom]):
