@@ -187,6 +187,37 @@ def test_a_stalled_line_hands_a_stream_no_reply_of_an_earlier_transaction() -> N
     assert not taken, "\n".join(taken[:5])
 
 
+@pytest.mark.parametrize("ids", [[1], [1, 2, 3]], ids=["one servo", "three servos"])
+def test_a_stalled_line_hands_no_read_beside_a_stream_another_reads_reply(ids: list[int]) -> None:
+    # A program reading a servo's stretch and speed beside a stream as the line stalls (found: the second read took
+    # the reply to the first one's guard read, with the old rule's guard a twin of the first read).
+    taken = []
+    orders = ((Param.STRETCH, Param.SPEED), (Param.SPEED, Param.STRETCH))
+    for shapes, start, stall in itertools.product(orders, (0.0013, 0.0031), STALLS[::2]):
+        engine = ready_engine()
+        servos = StalledPipe(set(ids), start, start + stall)
+        wire = Wire(engine, servos)
+        source = FakeSource(ids, wake_at=0.0, period=0.004 / len(ids))
+        where = f"{[p.name for p in shapes]} stalled {stall * 1e3:.0f} ms from {start * 1e3:.1f}"
+
+        def check(sid: int, value: int, wire: Wire = wire, servos: StalledPipe = servos, where: str = where) -> None:
+            k = len(wire.writes) - 1
+            if servos.answers[k] != value:
+                taken.append(f"{where}: the stream got {value}, write {k} was answered {servos.answers[k]}")
+
+        source.on_value = check
+        wire.emit(engine.attach_source(source, 0.0))
+        reads = [Recorded(read(1, param), retries=1, wire=wire) for param in shapes]
+        wire.run_for(start + 0.0005)
+        for req in reads:
+            wire.submit(req)
+        wire.run_for(0.4)
+        for req in reads:
+            if req.state == "done" and (problem := misattributed(req, servos)) is not None:
+                taken.append(f"{where}: {problem}; sent {[tx.hex(' ') for tx in wire.sent()[:8]]}")
+    assert not taken, "\n".join(taken[:5])
+
+
 def test_a_line_that_never_answers_fails_a_request_after_its_attempts() -> None:
     # Nothing comes back at all (an adapter that takes bytes and sends none): however many guard reads go before
     # its retries, the request still fails, after no more transactions than its tries and a guard before each retry.
