@@ -28,10 +28,11 @@ with both of that servo's guard reads remembered, the guard is a twin of the
 last command remembered if that is one of them (taking its echo and reply shows
 that every older one's came first, and none remembered went after it), otherwise a
 read of another servo (a late reply from this one fails it by its header; see
-:func:`~ics35_async.protocol.guard_read`).  A guard read that gets nothing back
-either shows nothing, and counts as one of the tries of the command it went
-before (see the engine), so a line that answers nothing still fails that
-command after its tries.  (On a line without echo nothing tells a stall from a
+:func:`~ics35_async.protocol.guard_read`).  A guard read that gets no echo of its
+own back either (nothing, or only bytes not its own: another servo answering
+without echo) shows nothing, and counts as one of the tries of the command it
+went before (see the engine), so a line that answers nothing (or nothing of its
+own) still fails that command after its tries.  (On a line without echo nothing tells a stall from a
 silent servo: the rule is for lines with echo.)
 
 A command to a servo already found silent (``Timing.SILENT``: a closing

@@ -105,12 +105,22 @@ class LinkLatency:
         self.owed = self._missing = 0
         self._unechoed.clear()
 
-    def judge(self, buf: bytearray, tx: bytes, echo_len: int, expect: int, first_byte_at: float, due: float) -> None:
+    def judge(
+        self,
+        buf: bytearray,
+        tx: bytes,
+        echo_len: int,
+        expect: int,
+        first_byte_at: float,
+        due: float,
+        unheard: tuple[bytes, ...] = (),
+    ) -> None:
         """A transaction failed while a reply was owed: did owed bytes land in front of its echo?
 
         Owed bytes are recognised by where they sit: this command's echo after them, the
-        echo of a command that got nothing while the reply was owed, or exactly the bytes
-        the owed reply lacked (its header first, if none of it came) followed by an echo.
+        echo of a command that got nothing while the reply was owed (or of one still owed
+        its echo: ``unheard``, see .guard), or exactly the bytes the owed reply lacked (its
+        header first, if none of it came) followed by an echo.
         """
         if not echo_len or not buf:
             return  # without an echo nothing tells a late tail from this reply; no bytes, no news
@@ -121,7 +131,7 @@ class LinkLatency:
         ours = echo_offset(buf, tx, 1)
         if not (
             ours > 0
-            or any(echo_offset(buf, sent, 0) >= 0 for sent in self._unechoed)
+            or any(echo_offset(buf, sent, 0) >= 0 for sent in (*self._unechoed, *unheard))
             or self._lacked_bytes_first(buf, tx)
         ):
             if len(self._unechoed) < MAX_BEHIND:

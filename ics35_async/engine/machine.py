@@ -827,13 +827,15 @@ class LineEngine:
             error = framing_error(self._current, sid, tx, buf, echo_len, self._expect, self._corrupted)
             link = self.link
             if link.owed_since != INF:
-                link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
+                link.judge(
+                    buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base, self.guard.unheard
+                )
             req = self._current
             due = self._due if self._settling else self.deadline
-            anything = self._note_what_came()
+            echoed = self._note_what_came()
             out = self._failed(error, sid, now)
             self._after_early_failure(req, due, now)
-            if not anything and isinstance(req, GuardRequest):
+            if not echoed and isinstance(req, GuardRequest):
                 self._guard_proved_nothing(req, sid, now)
             return out
         over = latency - self._base  # before the next transaction replaces _base
@@ -954,16 +956,16 @@ class LineEngine:
         )
         link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
-            link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
+            link.judge(buf, tx, echo_len, self._expect, self._t_first, due, self.guard.unheard)
         probe = self._short  # a probe: it waited less than the full allowance
         if heard and not probe:  # its reply is owed from its base deadline on (see .link)
             # (A probe's short wait says nothing of the link: its late reply must not raise the
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         read_in_slack, only_echo = self._read_in_slack, len(buf) == echo_len  # (before the resync clears buf)
-        anything = self._note_what_came()
+        echoed = self._note_what_came()
         out = self._failed(error, sid, now)
-        if not anything and isinstance(req, GuardRequest):
+        if not echoed and isinstance(req, GuardRequest):
             self._guard_proved_nothing(req, sid, now)
         if read_in_slack:
             # A read in a paced stream's slack timed out with its echo and nothing more: its servo is held back as a
@@ -1060,25 +1062,30 @@ class LineEngine:
             self.guard.suspect = (*self.guard.suspect, bytes((first,)))
 
     def _note_what_came(self) -> bool:
-        """Tell the guard rule what came back for the failing transaction (see .guard), and whether anything did.
-        Nothing at all, on a line with echo: a command whose echo never came (False).  Its own echo (first, or
-        behind bytes that were on their way): its echo came.  Other bytes only (a damaged echo, another command's
-        late bytes): nothing told, the rules for those hold (see .link and _after_early_failure)."""
+        """Tell the guard rule what came back for the failing transaction (see .guard), and whether its own echo
+        did (always, on a line without echo).  Nothing at all, on a line with echo: a command whose echo never
+        came.  Its own echo (first, or behind bytes that were on their way): its echo came.  Other bytes only (a
+        damaged echo, another command's late bytes, a servo that answers without echo): nothing told, the rules
+        for those hold (see .link and _after_early_failure)."""
         if not self._echo_len:
             return True
         tx, buf = self._tx, self._buf
         if not buf:
             self.guard.echo_came(tx, False)
             return False
-        if self.guard.unheard and echo_offset(buf, tx, 0) >= 0:
+        if echo_offset(buf, tx, 0) < 0:
+            return False
+        if self.guard.unheard:
             self.guard.echo_came(tx, True)
         return True
 
     def _guard_proved_nothing(self, guard: GuardRequest, sid: int, now: float) -> None:
-        """A guard read got nothing back at all, and the command it went before is one that got nothing either
-        (see .guard): it would only get another guard read, and another, on a line that answers nothing.  So the
-        guard counts as one of that command's tries: a request loses a retry, or fails as a try that got nothing
-        back would (taken off the queue: nothing else may end it); the source's transaction fails so."""
+        """A guard read got no echo of its own back (nothing at all, or only bytes not its own: a servo of another
+        ID answering without echo or garbled), and the command it went before is one that got nothing either (see
+        .guard): it would only get another guard read, and another, on a line that answers nothing (or nothing
+        of its own), and nothing it got clears that command.  So the guard counts as one of that command's tries:
+        a request loses a retry, or fails as a try that got nothing back would (taken off the queue: nothing else
+        may end it); the source's transaction fails so."""
         protected, tx = guard.protects, guard.protected_tx
         if tx not in self.guard.unheard:
             return  # (a guard for a late reply alone: the command goes next, as it would have)
