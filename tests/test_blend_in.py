@@ -187,3 +187,29 @@ async def test_a_watched_servo_of_untold_protocol_silent_to_the_read_is_freed_to
     assert abs(targets[0] - FAR) < 100 and targets[-1] == GOAL, targets[:5]
     said = [joining[2] for joining in seen if 2 in joining and joining[2].position is not None]
     assert said and said[0].frees, said[:1]
+
+
+async def test_a_moving_loop_target_adds_no_speed_to_a_blend() -> None:
+    # The loop's target swings at up to 40 degrees a second while servo 1 comes in from 118 degrees away: blended
+    # from where it stood towards a target that moves, the targets set ran at the blend's speed plus the target's
+    # own (about 90 degrees a second).  No target set moves faster than the limit, and the blend still ends on the
+    # loop's target, which it then follows.
+    sim = VirtualLine([VirtualServo(1, position=FAR)], log_size=None)
+    sent: list[tuple[float, dict[int, int]]] = []
+    amplitude = 40.0 / (2 * math.pi * 0.5) * units.COUNTS_PER_DEGREE  # (0.5 Hz: at most 40 degrees a second)
+    async with open_bus(sim, **FAST) as bus, bus.stream([1], rate_hz=200) as stream:
+        blend = BlendIn(stream, 1.0)
+        start = None
+        for _ in range(5000):
+            frame = await asyncio.wait_for(stream.next_frame(), GUARD)
+            start = frame.finished if start is None else start
+            goal = round(GOAL + amplitude * math.sin(2 * math.pi * 0.5 * (frame.finished - start)))
+            sent.append((frame.finished, blend.set_targets({1: goal}, frame)))
+            if not blend.joining and len(sent) > 5:
+                break
+        for _ in range(40):  # (and following the loop's target once joined)
+            frame = await asyncio.wait_for(stream.next_frame(), GUARD)
+            goal = round(GOAL + amplitude * math.sin(2 * math.pi * 0.5 * (frame.finished - start)))
+            sent.append((frame.finished, blend.set_targets({1: goal}, frame)))
+            assert sent[-1][1] == {1: goal}
+    assert steepest(sent, 1) <= 60.0, steepest(sent, 1)

@@ -59,8 +59,10 @@ class BlendIn:
     :attr:`Stream.held <ics35_async.Stream.held>`) is read until a cycle says where it stands, then its target goes
     smoothly (smoothstep: no jerk at either end) from there to the loop's.  The blend takes ``seconds``, or longer
     where the way is long: no blend goes faster than ``max_speed`` degrees per second (smoothstep is fastest
-    halfway, at 1.5 times its average speed), the way judged at the blend's start (a loop's target that moves on
-    meanwhile adds its own speed).  Where it stood is held within the servos' travel (3500..11500), as a target is.
+    halfway, at 1.5 times its average speed), the way judged at the blend's start; a loop's target that moves on
+    meanwhile adds none of its speed (no target set moves faster than ``max_speed`` from the one before it), and a
+    servo joins the loop once its target has caught the loop's (one that runs away faster than ``max_speed`` is
+    followed at that speed).  Where it stood is held within the servos' travel (3500..11500), as a target is.
 
     How a servo is read:
 
@@ -100,6 +102,7 @@ class BlendIn:
         # from before the servo went silent (or its port away), not where it stands now.
         self._read_after: dict[int, int] = {}
         self._joined: set[int] = set()
+        self._sent: dict[int, tuple[int, float]] = {}  # a blend's last target, and its frame's time
         # IDs heard answering ICS 3.6's position read while the stream watched them (beside what the line knows).
         self._heard_reading: set[int] = set()
 
@@ -130,6 +133,7 @@ class BlendIn:
             self._joining[sid] = Joining(held[sid])
             self._read_after[sid] = newest
             self._joined.discard(sid)
+            self._sent.pop(sid, None)
         out: dict[int, int] = {}
         for sid, goal in wanted.items():
             out[sid] = self._target(sid, goal, frame)
@@ -154,6 +158,7 @@ class BlendIn:
         if goal == protocol.FREE:  # (freed by the loop: targeted again, it is read and blended in again)
             self._joined.discard(sid)
             self._joining.pop(sid, None)
+            self._sent.pop(sid, None)
             self._read_after.pop(sid, None)  # (targeted again, it is read afresh: a reading after this frame's)
             return protocol.FREE
         if sid in self._joined:
@@ -180,11 +185,22 @@ class BlendIn:
         assert joining.position is not None
         s = 1.0 if joining.seconds <= 0 else min(1.0, (frame.finished - joining.since) / joining.seconds)
         if s >= 1.0:
+            aim = goal
+        else:
+            s = s * s * (3 - 2 * s)  # smoothstep: no jerk at either end of the blend
+            aim = round(joining.position + (goal - joining.position) * s)
+        # No faster than max_speed from the target sent last, whatever the loop's target does meanwhile (the blend
+        # is judged at its start: a target that moves on would add its own speed).
+        last, since = self._sent.get(sid, (joining.position, joining.since))
+        reach = self.max_speed * units.COUNTS_PER_DEGREE * max(0.0, frame.finished - since)
+        target = round(min(max(aim, last - reach), last + reach))
+        if target == goal and s >= 1.0:
             del self._joining[sid]
+            self._sent.pop(sid, None)
             self._joined.add(sid)
             return goal
-        s = s * s * (3 - 2 * s)  # smoothstep: no jerk at either end of the blend
-        return round(joining.position + (goal - joining.position) * s)
+        self._sent[sid] = (target, frame.finished)
+        return target
 
     def _blend_seconds(self, where: int, goal: int) -> float:
         """How long a blend from ``where`` to ``goal`` takes: ``seconds``, or as long as its steepest point
