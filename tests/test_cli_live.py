@@ -163,7 +163,7 @@ def test_monitor_json_that_loses_its_port_still_ends_with_a_final_line(cli: Any)
     docs = [json.loads(line) for line in result.out.splitlines()]
     assert docs and docs[-1]["final"] is True, result.out
     assert docs[-1]["servos"]["1"]["position"] is not None and docs[-1]["cycle"] > 0, docs[-1]
-    # (and the option that keeps watching through a lost port: the person learns of it where they need it)
+    # (and the option that keeps the command going through a lost port: the person learns of it where they need it)
     assert "--reconnect" in " ".join(result.err.split()), result.err
 
 
@@ -642,3 +642,62 @@ def test_a_servo_back_from_offline_shows_no_reading_from_before_until_read_again
     asyncio.run(main())
     temperatures = [None if temp is None else temperature_to_celsius(temp) for _, _, temp in shown_back]
     assert temperatures and all(t is None or t > 65 for t in temperatures), temperatures  # (never the 42 C before)
+
+
+def test_demo_with_reconnect_waits_for_a_lost_port_and_brings_the_servos_back_in_from_where_they_stand(
+    cli: Any, sim_line: Any
+) -> None:
+    # A loose cable ended the wave (exit 1).  With --reconnect it waits for the port, says so, and carries on once
+    # it is back: each servo read again first (it may have restarted, free, elsewhere), then blended into the wave.
+    sim, url = sim_line([1, 2], realtime=True)
+    ended = threading.Event()
+    away = scaled(1.5)
+    back_at: list[int] = []
+
+    def unplug_then_plug_back() -> None:  # (once the stream runs: by what the command has sent, not by the clock)
+        while not ended.is_set() and len(sim.log_since(0)) < 40:
+            time.sleep(0.01)
+        sim.unplug()
+        ended.wait(away)
+        back_at.append(len(sim.log))
+        sim.replug()
+
+    plugging = threading.Thread(target=unplug_then_plug_back)
+    plugging.start()
+    try:
+        seconds = f"{away + scaled(3):g}"
+        result = cli("--port", url, "demo", "--ids", "1-2", "--reconnect", "--seconds", seconds)
+    finally:
+        ended.set()
+        plugging.join()
+    assert result.code == 0, result.err
+    assert sim.unplug_count == 1, "the port was never unplugged"
+    summaries = [line for line in result.out.splitlines() if line.startswith("t=")]
+    lost = [k for k, line in enumerate(summaries) if "port lost" in line]
+    assert lost and "waiting for it to come back" in summaries[lost[0]], result.out
+    after = summaries[lost[-1] + 1 :]
+    assert after and "answering 2/2" in after[-1] and "reconnects 1" in after[-1], result.out
+    # Back, each servo's first command is the free command that reads where it stands (not a wave target).
+    firsts = {}
+    for t in sim.log_since(back_at[0]):
+        if t.command in ("position", "free") and t.servo_id not in firsts:
+            firsts[t.servo_id] = t.command
+    assert firsts == {1: "free", 2: "free"}, firsts
+    assert "all servos left free" in result.out, result.out
+
+
+def test_demo_with_reconnect_rides_out_a_port_lost_while_it_asks_its_ids(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1, 2], realtime=True, faults="unplug:1", replug_after=scaled(0.3))
+    sim.add_listener(lambda plugged: setattr(sim, "faults", FaultInjector()))  # (once: the port stays back)
+    result = cli("--port", url, "--timeout", "0.05", "demo", "--ids", "1-2", "--reconnect", "--seconds", "1")
+    assert result.code == 0, result.err
+    said = [line for line in result.err.splitlines() if "port is lost" in line]
+    assert len(said) == 1 and "waiting for it to come back" in said[0], result.err
+    summary = [line for line in result.out.splitlines() if line.startswith("t=")][-1]
+    assert "answering 2/2" in summary and "reconnects 1" in summary, result.out
+
+
+def test_demo_without_reconnect_fails_at_a_lost_port_and_names_the_option(cli: Any) -> None:
+    result = cli("--port", "sim://?ids=1-2&realtime=1&unplug_after=0.5", "demo", "--ids", "1-2", "--seconds", "5")
+    assert result.code == ExitCode.COMMUNICATION and "lost" in result.err, result.err
+    assert "--reconnect" in " ".join(result.err.split()), result.err

@@ -76,6 +76,13 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float) -> TargetFuncti
     help="Wave amplitude in degrees (default: 45 on the simulator, 15 on hardware).",
 )
 @click.option("--frequency", type=click.FloatRange(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
+@click.option(
+    "--reconnect",
+    is_flag=True,
+    help="Keep going through a lost port (an adapter unplugged, a loose cable): the view says so, waits for it, "
+    "and once it is back reads each servo again and brings it into the wave from where it stands (without it, a "
+    "lost port ends the command with an error).",
+)
 @stream_options
 @yes_option
 @click.pass_context
@@ -85,6 +92,7 @@ def demo(
     seconds: float,
     amplitude: float | None,
     frequency: float,
+    reconnect: bool,
     rate: float | None,
     per_cycle: int,
     plot: str | None,
@@ -95,7 +103,8 @@ def demo(
     Every servo goes limp for the first cycle (where it stands is read with the free command) and at the
     end: servos on the desk, or a robot held up, not one standing on them.  A servo that stops answering and
     comes back (it may have restarted elsewhere) is read so too, and joins the wave from where it stands, no
-    faster than 60 degrees a second.
+    faster than 60 degrees a second.  With --reconnect a lost port is waited for, and each servo is read and
+    brought in so once it is back.
 
     \b
     No hardware:   ics35 demo                      (built-in simulator, 32 servos)
@@ -125,13 +134,13 @@ def demo(
         # A real robot's joints may hit each other or the frame: start small there.
         amplitude = 45.0 if settings.is_sim else 15.0
     swing = amplitude
-    options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
+    options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot, reconnect=reconnect)
 
     started: list[LiveState] = []  # (what it left the servos in, should a second Ctrl-C force it out)
-    asking = AskingIds(settings, False)
+    asking = AskingIds(settings, False, reconnect=reconnect, seconds=seconds)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
-        async with settings.bus() as bus:
+        async with settings.bus(reconnect=reconnect) as bus:
             silent: list[int] = []
             if ids and not asked_all:
                 chosen = ids
@@ -140,14 +149,16 @@ def demo(
                     # streamed unasked, an ID where no servo is cost the stream's first cycles its whole --timeout
                     # each, three cycles before the stream left it out (the terminal blank meanwhile).
                     say(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
-                    with asking.while_asking(f"asking {ids_named(chosen)}"):
-                        answered, garbled = await probe_ids(bus, chosen)
+                    answered, garbled = await asking.ask(
+                        bus, f"asking {ids_named(chosen)}", lambda: probe_ids(bus, chosen)
+                    )
                     # (none answering: streamed as they are, the run's end says so and looks at other rates)
                     if answered:
                         silent = [i for i in chosen if i not in answered and i not in garbled]
             else:
-                with asking.while_asking("scanning"):
-                    chosen = await discover(bus, settings, shown, False, asked_all=asked_all)
+                chosen = await asking.ask(
+                    bus, "scanning", lambda: discover(bus, settings, shown, False, asked_all=asked_all)
+                )
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
                 question = (

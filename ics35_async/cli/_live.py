@@ -215,11 +215,12 @@ async def run_live(
                     # itself goes to stderr).
                     render(final=True)
                 lost = isinstance(exc, (PortLost, ClosedByPortLoss, OSError))
-                if not freed:
-                    raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
+                error = line_error(settings, exc)
                 if lost and options.reconnect is False:
-                    error = line_error(settings, exc)
                     error.hints.append(RECONNECT_HINT)
+                if not freed:
+                    raise still_holding(settings, commanded, error, line_lost=lost) from None
+                if lost and options.reconnect is False:
                     raise error from None
                 raise
             if not freed:
@@ -308,7 +309,7 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
 
 
 # What a lost port's error adds where the command has --reconnect and it was not given.
-RECONNECT_HINT = "--reconnect keeps watching through a lost port: it waits for it to come back"
+RECONNECT_HINT = "--reconnect keeps the command going through a lost port: it waits for it to come back"
 
 # Seconds between looks at the port while no frame comes (--reconnect): how late a loss is told.
 LOST_PORT_LOOK = 0.1
