@@ -32,8 +32,8 @@ read of another servo (a late reply from this one fails it by its header; see
 own back either (nothing, or only bytes not its own: another servo answering
 without echo) shows nothing, and counts as one of the tries of the command it
 went before (see the engine), so a line that answers nothing (or nothing of its
-own) still fails that command after its tries.  (On a line without echo nothing tells a stall from a
-silent servo: the rule is for lines with echo.)
+own) still fails that command after its tries.  (On a line without echo nothing
+tells a stall from a silent servo: the rule is for lines with echo.)
 
 A command to a servo already found silent (``Timing.SILENT``: a closing
 stream's free to an offline servo) goes without a guard read: its reply

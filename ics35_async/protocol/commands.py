@@ -307,11 +307,11 @@ class SecondLookRead(ReadParam):
 
 class GuardRead(ReadParam):
     """The read :func:`guard_read` makes: it follows a command that got no reply, so its servo's
-    silence is to be expected."""
+    silence is to be expected (the same servo's, or, in a long stall, another's: see :func:`guard_read`)."""
 
     __slots__ = ()
 
-    silence = "no reply to the guard read: the servo that did not answer just before is silent still"
+    silence = "no reply to the guard read (a harmless read sent after a command that got none): its servo is silent"
 
 
 def guard_read(tx: bytes, servo_id: int, avoid: Sequence[bytes] = ()) -> ReadParam:
