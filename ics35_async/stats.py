@@ -61,7 +61,10 @@ class LatencyHistogram:
 
 @dataclass
 class IdStats:
-    """Counters of one ID (or of the whole bus): transactions, their outcomes, retries and bytes."""
+    """Counters of one ID (or of the whole bus): transactions, their outcomes, retries and bytes.
+
+    A guard read (see ``BusStats.guards``) counts under the ID of the command it went before, also where, in a
+    long stall, it reads another servo."""
 
     transactions: int = 0
     """Transactions written (a retry is one more)."""
@@ -76,8 +79,9 @@ class IdStats:
     bad_replies: int = 0
     """Transactions whose reply was whole but wrong (header, length, checksum or value)."""
     retries: int = 0
-    """Times an idempotent request's command went again after a failure (a try spent by a guard read that got
-    nothing back, on a line that had sent nothing back to the command either, is not one: the command did not go)."""
+    """Times an idempotent request's command went again after a failure (a try spent by a guard read that got no
+    echo of its own back, on a line that had sent nothing back to the command either, is not one: the command did
+    not go)."""
     bytes_tx: int = 0
     """Bytes written."""
     bytes_rx: int = 0
