@@ -29,7 +29,7 @@ from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
-from tests.support.sim_servos import TakesTheWriteSilently, UnpluggedAfterWrite, UnplugsWhenAsked
+from tests.support.sim_servos import TakesTheWriteSilently, TelemetryOnAndOff, UnpluggedAfterWrite, UnplugsWhenAsked
 from tests.support.timing import GUARD
 
 TOKEN = "test-token-0123456789abcdef"
@@ -1868,4 +1868,41 @@ async def test_the_line_pages_search_of_the_other_rates_says_which_it_tries_in_t
         assert session.status()["searching"] is None
     finally:
         await session.close()
+        sim.close()
+
+
+def test_the_line_pages_reads_say_a_servo_is_not_answering_after_two_failed_rounds_as_the_live_views(
+    serve: Any,
+) -> None:
+    # One telemetry read that failed turned the row into "not answering" at once, while the live views (and
+    # monitor's table) keep a reading through one failed read and drop it at the second in a row
+    # (frames.STALE_AFTER_FAILED_READS): a servo missing one read now and then flickered on the Line page.
+    name = f"web-api-{next(_names)}"
+    flaky = TelemetryOnAndOff(2)
+    sim = VirtualLine([VirtualServo(1), flaky], name=name)
+    session = LineSession(LineConfig(port=f"sim://{name}", adapter_latency=0.005))
+    try:
+        with TestClient(create_app(session, TOKEN), base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            assert post(client, "/api/scan", {"ids": [1, 2]}).status_code == 200
+
+            def row() -> dict[str, Any]:
+                assert client.portal is not None
+                client.portal.call(session.read_telemetry)
+                return next(r for r in session.servos_view() if r["id"] == 2)
+
+            first = row()
+            assert first["telemetry_error"] is None and first["temperature_c"] is not None, first
+            flaky.silent = True
+            once = row()  # one round failed: the reading of the round before stands, as in a live view
+            assert once["telemetry_error"] is None and once["temperature_c"] == first["temperature_c"], once
+            twice = row()
+            assert twice["telemetry_error"] and "no reply" in twice["telemetry_error"], twice
+            flaky.silent = False
+            back = row()
+            assert back["telemetry_error"] is None and back["temperature_c"] is not None, back
+            flaky.silent = True
+            again = row()  # (a failure after an answer is the first of a new run)
+            assert again["telemetry_error"] is None, again
+    finally:
         sim.close()

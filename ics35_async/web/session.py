@@ -42,6 +42,7 @@ from ..errors import (
     VerifyError,
     error_text,
 )
+from ..frames import STALE_AFTER_FAILED_READS
 from ..policies import (
     ALL_IDS,
     EepromPlan,
@@ -607,7 +608,15 @@ class LineSession:
                 # (a garbled answer is told as such, not as silence: the page sends a person to the power for that)
                 garbled = isinstance(exc, (BadReply, PartialReply))
                 said = self.answered_garbled(exc) if isinstance(exc, (BadReply, PartialReply)) else str(exc)
-                self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": said, "garbled": garbled}
+                row = self.telemetry.get(sid, {})
+                failed = row.get("failed_reads", 0) + 1
+                if failed < STALE_AFTER_FAILED_READS and row and row.get("telemetry_error") is None:
+                    # One round that failed leaves the round before's readings standing, as the live views keep a
+                    # reading (see frames.STALE_AFTER_FAILED_READS): a servo missing a read now and then does not
+                    # flicker "not answering".  Its motion still goes off at once (lost_touch: it may have restarted).
+                    self.telemetry[sid] = {**row, "failed_reads": failed}
+                else:
+                    self.telemetry[sid] = {**row, "telemetry_error": said, "garbled": garbled, "failed_reads": failed}
                 if isinstance(exc, ReplyTimeout):
                     self.lost_touch([sid])
                 continue
@@ -618,6 +627,7 @@ class LineSession:
                 "position": reading.position,
                 "position_note": reading.why,
                 "telemetry_error": None,
+                "failed_reads": 0,
             }
 
     # ------------------------------------------------------------------ a servo that did not answer

@@ -130,3 +130,18 @@ class TelemetryGoesSilent(VirtualServo):
                 self.unanswered += 1
                 return NO_REPLY
         return reply
+
+
+class TelemetryOnAndOff(VirtualServo):
+    """A servo whose temperature and current reads go unanswered while ``silent`` is set (a test sets it), and
+    answers everything else (its position reads): a servo that misses a few telemetry reads now and then."""
+
+    def __init__(self, servo_id: int, **options: Any) -> None:
+        super().__init__(servo_id, **options)
+        self.silent = False
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if self.silent and isinstance(command, ReadParam) and command.param in TELEMETRY_PARAMS:
+            return NO_REPLY
+        return reply
