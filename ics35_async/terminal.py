@@ -33,6 +33,26 @@ ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleare
 _echoed: list[bool] = []  # a Ctrl-C was typed and its echoed ^C not cleared yet (see ctrl_c_typed)
 
 
+def fitted_lines(text: str, stream: IO[str] | None) -> str:
+    """``text`` as written to ``stream``: on a terminal, each line wrapped at words to its width (a terminal cuts
+    a line mid-word), further lines under the first's indent; a word wider than that is broken where it must (a
+    path); into a pipe or a file, as it is (a log keeps its lines whole).  The command line's rich consoles wrap
+    their own lines so (see ``cli._console``); this is for the plain ones (the simulator's server and console)."""
+    try:
+        if stream is None or not stream.isatty():
+            return text
+        width = os.get_terminal_size(stream.fileno()).columns
+    except (OSError, ValueError, AttributeError):  # (closed, or not a file: a test's StringIO)
+        return text
+    import textwrap  # (only on a terminal: the command line's start pays for no more than it uses)
+
+    lines = []
+    for line in text.split("\n"):
+        indent = line[: len(line) - len(line.lstrip())]
+        lines.extend(textwrap.wrap(line, max(width, 1), subsequent_indent=indent, break_on_hyphens=False) or [""])
+    return "\n".join(lines)
+
+
 def in_background_of_terminal(fd: int = 0) -> bool:
     """Whether ``fd`` is this process's controlling terminal and the process is in a background process
     group of it (started with ``&``): reading it would stop the process (SIGTTIN), and all it serves with it."""

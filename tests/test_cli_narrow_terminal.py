@@ -237,3 +237,25 @@ def test_the_version_with_verbose_wraps_at_words() -> None:
     # The same words, none cut in two but one wider than the terminal (the platform's name), cut where it must.
     words = [word[k : k + 40] for word in logged.stdout.split() for k in range(0, len(word), 40)]
     assert " ".join(screen).split() == words, screen
+
+
+def test_the_simulators_own_lines_and_its_consoles_answers_wrap_at_words() -> None:
+    # `ics35 sim --console` at 50 columns: its "ics35 sim: ..." lines and the console's answers (unplug port) were
+    # printed whole, cut by the terminal mid-word ("a program on it lo" / "ses it").
+    columns = 50
+    code, written = typed_on_a_terminal(
+        ["sim", "--ids", "1-3", "--console"],
+        [("sim>", b"unplug port\n"), ("replug port", b"quit\n")],
+        columns=columns,
+    )
+    screen = screen_of(written, width=columns)
+    assert code == 0, screen
+    assert all(len(line) <= columns for line in screen), screen
+    text = " ".join(line.strip() for line in screen)
+    for sentence in (
+        "ics35 sim: console: type help for its commands, quit to stop",
+        "is gone and a program on it loses it (replug port plugs it back in)",
+    ):
+        assert sentence in text, screen
+    words = {word for line in screen for word in line.split()}
+    assert {"loses", "console:", "commands,"} <= words, screen

@@ -32,7 +32,7 @@ from typing import ClassVar, TextIO
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
-from ..terminal import ERASE_LINE
+from ..terminal import ERASE_LINE, fitted_lines
 from ..units import TRAVEL_MAX, TRAVEL_MIN, position_to_degrees
 from .virtual_line import ServoState, VirtualLine
 from .virtual_servo import VirtualServo
@@ -379,7 +379,7 @@ class ConsoleReader:
                     self._prompted = False  # (the line typed ended with its newline, echoed by the terminal)
             for line in lines:
                 answer = self.console.execute(line.decode("utf-8", "replace"))
-                self._write(answer + "\n")
+                self._write(fitted_lines(answer, self.out) + "\n")
                 if self.console.quit:
                     self.on_end()
                     return

@@ -18,7 +18,7 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
-from ..terminal import clear_echoed_ctrl_c, in_background_of_terminal
+from ..terminal import clear_echoed_ctrl_c, fitted_lines, in_background_of_terminal
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
 from .console import PROMPT, ConsoleReader, LineConsole
@@ -30,6 +30,11 @@ from .record import ReplayDevice
 from .tap import LineTap
 from .url import parse_line_ids, parse_seconds
 from .virtual_line import DEFAULT_REPLUG_AFTER, VirtualLine
+
+
+def to_stderr(text: str) -> None:
+    """A line of the simulator's own on stderr, wrapped at words on a terminal (see terminal.fitted_lines)."""
+    print(fitted_lines(text, sys.stderr), file=sys.stderr, flush=True)
 
 
 def build_parser(
@@ -243,9 +248,9 @@ def main(
     def note(text: str) -> None:
         """A line of the simulator's own on stderr, from any thread: with the console's prompt kept last."""
         if console is None:
-            print(text, file=sys.stderr, flush=True)
+            to_stderr(text)
         else:
-            console.aside(lambda: print(text, file=sys.stderr, flush=True))
+            console.aside(lambda: to_stderr(text))
 
     if isinstance(device, VirtualLine):
         say_unplugs(device, started, note)
@@ -294,19 +299,15 @@ def main(
             what += "real-time" if device.realtime else "fast"
         if isinstance(device, VirtualLine) and device.adapter is not None:
             what += f", behind a USB adapter model ({device.adapter.latency_timer_ms} ms latency timer)"
-        print(f"ics35 sim: {what} on {server.pts_name} (link {path})", file=sys.stderr, flush=True)
+        to_stderr(f"ics35 sim: {what} on {server.pts_name} (link {path})")
         if tap is not None:
-            print(
-                f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})",
-                file=sys.stderr,
-                flush=True,
-            )
+            to_stderr(f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})")
         if args.console and isinstance(device, VirtualLine):
             commands = LineConsole(device, args.baud, str(path))
 
             def on_end() -> None:
                 if not commands.quit:  # (quit said so on stdout already)
-                    print("ics35 sim: console: end of input: the simulator stops", file=sys.stderr, flush=True)
+                    to_stderr("ics35 sim: console: end of input: the simulator stops")
                 server.stop()
 
             # A prompt only for a person typing on the terminal the answers go to, as Python's input() has it:
@@ -316,7 +317,7 @@ def main(
             console = ConsoleReader(
                 commands, on_end, out=sys.stdout, prompt=PROMPT, prompt_out=sys.stdout if prompting else None
             )
-            print("ics35 sim: console: type help for its commands, quit to stop", file=sys.stderr, flush=True)
+            to_stderr("ics35 sim: console: type help for its commands, quit to stop")
             console.start()
         server.serve()
     except LinkFolderGone as exc:
@@ -337,7 +338,7 @@ def main(
             dropped, served = server.dropped_bytes, device.transactions
             lost = f"; {dropped} byte{'s' if dropped != 1 else ''} no client took" if dropped else ""
             counted = f"{served} transaction{'s' if served != 1 else ''}"
-            print(f"ics35 sim: served {counted}{lost}", file=sys.stderr, flush=True)
+            to_stderr(f"ics35 sim: served {counted}{lost}")
         for when, what, data in server.last:
-            print(f"ics35 sim: at {when:.6f} {what:5} {data.hex(' ')}", file=sys.stderr, flush=True)
+            to_stderr(f"ics35 sim: at {when:.6f} {what:5} {data.hex(' ')}")
     return code
