@@ -1690,3 +1690,15 @@ def test_demos_title_on_a_narrower_terminal_keeps_the_port_its_rate_and_what_the
     # does not fit (neighbours sharing one where they fit), the port's name cut at its start if it must be.
     args = ["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "60"]
     assert_live_title(args, columns, ("demo: wave on 3 servo(s),", "(left free at the end)"), 70)
+
+
+def test_monitor_json_stopped_with_ctrl_c_on_a_terminal_ends_with_a_line_that_parses() -> None:
+    # The terminal echoed ^C where the cursor was, and the final JSON line followed it: "^C{"t": ...}", a line no
+    # JSON reader of the screen (a copy, a terminal log) takes.
+    code, written = typed_on_a_terminal(
+        ["--port", "sim://?ids=1-2&realtime=1", "monitor", "1-2", "--free", "--json"], [('"final": false', b"\x03")]
+    )
+    screen = [line for line in screen_of(written) if line.strip()]
+    assert code == 0, screen
+    last = json.loads(screen[-1])
+    assert last["final"] is True, screen[-1]

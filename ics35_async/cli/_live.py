@@ -197,9 +197,10 @@ async def run_live(
                             # In the live view itself: a line printed beside it (stderr) garbles the redraw,
                             # leaving the table's title twice on the screen.
                             render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
-                        elif not options.as_json:
-                            clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
-                            say("stopping: freeing the servos" if options.free_at_end else "stopping")
+                        else:
+                            clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed: nor the last JSON line)
+                            if not options.as_json:
+                                say("stopping: freeing the servos" if options.free_at_end else "stopping")
                     finally:
                         # The run's time, not its last frame's (the next one may have been due after the time was up).
                         state.elapsed = max(state.elapsed, loop.time() - start)
