@@ -259,3 +259,16 @@ def test_the_simulators_own_lines_and_its_consoles_answers_wrap_at_words() -> No
         assert sentence in text, screen
     words = {word for line in screen for word in line.split()}
     assert {"loses", "console:", "commands,"} <= words, screen
+
+
+@pytest.mark.parametrize("columns", [40, 50])
+def test_help_below_fifty_columns_wraps_at_words(columns: int) -> None:
+    # click lays its help out for 50 columns at least: on a narrower terminal every line of it was cut mid-word
+    # ("the cyc" / "le rate"), the options' descriptions in a column of ten letters past the edge.
+    code, written = typed_on_a_terminal(["monitor", "--help"], [], columns=columns)
+    screen = screen_of(written, width=columns)
+    assert code == 0, screen
+    assert all(len(line) <= columns for line in screen), screen
+    text = " ".join(line.strip() for line in screen)
+    assert "Watch servos live: position, current, temperature, per-ID errors and the cycle rate." in text, screen
+    assert "Keep watching through a lost port (an adapter unplugged, a loose cable)" in text, screen

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import importlib
 import inspect  # click imports it already: no start-up cost
+import shutil  # (click too)
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 import click
@@ -26,6 +27,23 @@ from ._line_options import add_line_options, group_line_options, settings_from
 from ._settings import CliError, ExitCode
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
+
+
+class HelpFitted(click.HelpFormatter):
+    """click's help layout, fitted to a terminal narrower than the 50 columns click lays it out for at least (the
+    terminal cut every line mid-word): the terminal's width, and the options' first column narrower so their
+    descriptions keep words beside it.  Into a pipe or a file, click's own."""
+
+    def __init__(self, indent_increment: int = 2, width: int | None = None, max_width: int | None = None) -> None:
+        if width is None and sys.stdout.isatty():
+            columns = shutil.get_terminal_size().columns
+            if columns - 2 < 50:
+                width = max(columns - 2, 20)
+        super().__init__(indent_increment, width, max_width)
+
+    def write_dl(self, rows: Iterable[tuple[str, str]], col_max: int = 30, col_spacing: int = 2) -> None:
+        super().write_dl(rows, min(col_max, max(self.width // 3, 8)), col_spacing)
+
 
 # Each command's module (its COMMANDS list is mounted on the group): running a command imports only its
 # own module, so `ics35 get` does not pay for the robot, the plot or the web server; listing them (help)
@@ -170,6 +188,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     """Console-script entry point: runs ``ics35`` and exits with its code."""
     try:
         _signals.install()  # (within the try: a Ctrl-C as main begins ends in one line too)
+        click.Context.formatter_class = HelpFitted  # (this process's: every command's help, the group's too)
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
         # (Within the try: a Ctrl-C as the exit code is worked out, the command over, ends in one line too.)
         code = code if isinstance(code, int) else 0

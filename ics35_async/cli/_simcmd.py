@@ -47,7 +47,7 @@ class ClickStyleErrors(argparse.ArgumentParser):
 
 def click_style_help(parser: argparse.ArgumentParser, prog: str) -> str:
     """The simulator's argparse options laid out as click lays out every other command's help."""
-    formatter = click.HelpFormatter()
+    formatter = click.Context.formatter_class()  # (the one every command's help has in this process: see main)
     formatter.write_usage(prog, "[OPTIONS]")
     if parser.description:
         formatter.write_paragraph()
