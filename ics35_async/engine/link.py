@@ -113,7 +113,7 @@ class LinkLatency:
         expect: int,
         first_byte_at: float,
         due: float,
-        unheard: tuple[bytes, ...] = (),
+        unheard: tuple[bytes, ...],
     ) -> None:
         """A transaction failed while a reply was owed: did owed bytes land in front of its echo?
 
