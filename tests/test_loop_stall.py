@@ -9,6 +9,7 @@ loops: the default one and uvloop.
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -81,3 +82,49 @@ def test_the_anyio_driver_takes_a_loop_stalled_again_and_again_for_a_stall_not_a
 
     assert run_with_errors(LOOPS[loop_name], main) == []
     sim.close()
+
+
+class _SlowLog(logging.Handler):
+    """A log handler as slow as a terminal being redrawn, or a log file on a busy SD card: it takes ``delay``
+    seconds over each of the stream's warnings."""
+
+    def __init__(self, delay: float) -> None:
+        super().__init__(logging.WARNING)
+        self.delay = delay
+        self.told: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.told.append(record.getMessage())
+        time.sleep(self.delay)
+
+
+DRIVERS_ON_LOOPS = [("asyncio", "asyncio"), ("asyncio", "uvloop"), ("thread", "asyncio"), ("anyio", "asyncio")]
+
+
+@pytest.mark.parametrize(("driver", "loop_name"), DRIVERS_ON_LOOPS)
+def test_a_transaction_waits_its_allowance_from_when_it_was_written_however_late_that_was(
+    driver: str, loop_name: str
+) -> None:
+    # A paced stream that falls behind warns as it plans its next cycle's first transaction: between the engine
+    # answering with those bytes and the driver writing them, the program's log handler ran.  Its 30 ms were
+    # counted into the transaction's allowance (the deadline came from when the engine answered), so a servo that
+    # answered at once after the write was judged silent: `ics35 monitor` showed an error on a simulator.
+    sim = VirtualLine([VirtualServo(i) for i in range(4)], realtime=True, log_size=None)
+    slow = _SlowLog(0.03)
+    library = logging.getLogger("ics35_async")
+    library.addHandler(slow)
+
+    async def main() -> None:
+        async with open_bus(sim, driver=driver) as bus:
+            async with bus.stream(range(4), rate_hz=5000) as stream:
+                for _ in range(30):
+                    await asyncio.wait_for(stream.next_frame(), 5)
+            assert slow.told and "cannot keep rate_hz=5000" in slow.told[0], slow.told
+            assert stream.stats.failures == {}, stream.stats.failures
+            assert bus.stats.total.timeouts == 0
+
+    try:
+        assert run_with_errors(LOOPS[loop_name], main) == []
+    finally:
+        library.removeHandler(slow)
+        sim.close()

@@ -6,7 +6,8 @@ core holds the rest, once:
 
 * :meth:`DriverCore._step`: what came from the port (or that time passed)
   fed to the engine, and :meth:`DriverCore._act`: the engine's answer acted
-  on (bytes written, the input flushed first when a resync ended);
+  on (bytes written, the input flushed first when a resync ended, and the
+  engine told when they went: ``LineEngine.written``);
 * :meth:`DriverCore._after`: the same for an engine call from the user's
   side, with the driver's wait re-aimed when the deadline moved earlier;
 * lost-port handling, the reconnect schedule, idle waiters, the drain on
@@ -349,6 +350,8 @@ class DriverCore:
                 self._write_blocked(port)
         except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
             self._write_failed(port, exc)
+            return
+        self.engine.written(now())  # (the allowance counts from here: see Engine.written)
 
     # ------------------------------------------------------------------ the burst path (see .burst)
 

@@ -7,6 +7,8 @@ The rules, each in one place:
 
 * one transaction at a time: write, consume the echo (when the line echoes),
   read exactly the reply length of that command, validate it;
+* the allowance counts from the write (``LineEngine.written``: the program
+  may hold the driver up between the engine's answer and its write);
 * outcome: a reply that does not arrive by the deadline is a timeout, a
   partial reply, or an echo mismatch, by what did arrive; a wrong echo
   (judged first: bytes ahead of it are a late reply), extra bytes, a byte

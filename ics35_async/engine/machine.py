@@ -480,6 +480,16 @@ class LineEngine:
             self._resync(now)
         return None
 
+    def written(self, now: float) -> None:
+        """The driver wrote the bytes the engine last answered with at ``now``.  Later than the time the engine was
+        given when it answered, where the program held the driver up in between (the stream's warning through a
+        slow log handler as it planned its next transaction, another thread holding the interpreter): the
+        transaction's allowance counts from the write, or a servo that answered at once after it was judged silent
+        for the program's delay."""
+        if self.state is BUSY and now > self._t_start:
+            self.deadline += now - self._t_start
+            self._t_start = now
+
     def receive_planned(
         self, records: list[tuple[bytes, float, float]], count: int, plan: list[PlannedTransaction], first: int
     ) -> tuple[int, bytes | None]:
