@@ -351,7 +351,7 @@ class DriverCore:
         except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
             self._write_failed(port, exc)
             return
-        self.engine.written(now())  # (the allowance counts from here: see Engine.written)
+        self.engine.written(now())  # (the allowance counts from here: see LineEngine.written)
 
     # ------------------------------------------------------------------ the burst path (see .burst)
 
