@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ import pytest
 
 from ics35_async import open_bus
 from ics35_async.cli import ExitCode
-from ics35_async.cli._console import TitleInParts
+from ics35_async.cli._console import DRAW_SHARE, Redraws, TitleInParts
 from ics35_async.cli._live_view import LiveState
 from ics35_async.cli._telemetry import Telemetry
 from ics35_async.sim import VirtualLine, VirtualServo
@@ -701,3 +702,21 @@ def test_demo_without_reconnect_fails_at_a_lost_port_and_names_the_option(cli: A
     result = cli("--port", "sim://?ids=1-2&realtime=1&unplug_after=0.5", "demo", "--ids", "1-2", "--seconds", "5")
     assert result.code == ExitCode.COMMUNICATION and "lost" in result.err, result.err
     assert "--reconnect" in " ".join(result.err.split()), result.err
+
+
+def test_a_live_view_draws_less_often_where_a_drawing_takes_long() -> None:
+    # Drawn ten times a second whatever a drawing cost, monitor's table of 32 servos at 60 columns (30-70 ms a
+    # drawing) took most of the loop that streams: 19-23 cycles/s over a pty, 35 into a file.
+    clock = [0.0]
+
+    def drawing(took: float) -> Callable[[], None]:
+        return lambda: clock.__setitem__(0, clock[0] + took)
+
+    redraws = Redraws(0.1, clock=lambda: clock[0])
+    assert redraws.due(5.0)  # (the first at once)
+    redraws.draw(5.0, drawing(0.005))
+    assert not redraws.due(5.099) and redraws.due(5.1)
+    redraws.draw(5.1, drawing(0.08))  # at most DRAW_SHARE of the time: the next one 0.4 s on
+    assert not redraws.due(5.1 + 0.08 / DRAW_SHARE - 0.001) and redraws.due(5.1 + 0.08 / DRAW_SHARE)
+    later = Redraws(1.0, first=7.0)  # (a log's first line after a second, with a rate measured)
+    assert not later.due(6.9) and later.due(7.0)

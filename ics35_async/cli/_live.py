@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ from ._common import (
 )
 from ._console import (
     LiveTable,
+    Redraws,
     ids_argument,
     library_warnings_said,
     live_view,
@@ -104,12 +104,11 @@ async def run_live(
     telemetry = Telemetry(bus, state.ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json
-    render_every = 0.1 if tty else 1.0
     live = live_view(auto_refresh=False, transient=False, vertical_overflow="visible") if tty else None
     start = loop.time()
     # A terminal gets a table at once; a log or --json gets its first line after a second, with a
     # measured rate (a line at t=0 would say 0 Hz).
-    last_render = -math.inf if tty else start
+    redraws = Redraws(0.1) if tty else Redraws(1.0, first=start + 1.0)
     deadline = None if options.seconds is None else start + options.seconds
 
     def render(final: bool = False, hint: str = "   Ctrl-C to stop") -> None:
@@ -126,10 +125,8 @@ async def run_live(
             out.print(state.summary(telemetry))
 
     def draw_if_due(now: float) -> None:
-        nonlocal last_render
-        if now - last_render >= render_every:
-            last_render = now
-            render()
+        if redraws.due(now):
+            redraws.draw(now, render)
 
     async def next_frame() -> Frame:
         """The stream's next frame.  With --reconnect a lost port pauses the stream until it is back: meanwhile

@@ -23,7 +23,16 @@ from ..robot import JointSpec, Robot, RobotFrame
 from ..robot.description import SERVO_DEGREES
 from ..terminal import clear_echoed_ctrl_c
 from ._common import out
-from ._console import LiveTable, TitleInParts, live_view, printed_table, say, signed_tenths, wrapped_at_width
+from ._console import (
+    LiveTable,
+    Redraws,
+    TitleInParts,
+    live_view,
+    printed_table,
+    say,
+    signed_tenths,
+    wrapped_at_width,
+)
 
 Extra = Callable[[str], Sequence[str]]
 # The columns a terminal too narrow for the whole table goes without, in turn: the servo behind each joint (the
@@ -137,7 +146,7 @@ class Screen:
         self.title = title
         self.tty = out.is_terminal
         self._live = live_view(auto_refresh=False, transient=False) if self.tty else None
-        self._last = time.monotonic()
+        self._redraws = Redraws(0.1) if self._live is not None else Redraws(1.0, first=time.monotonic() + 1.0)
         self._said = ""
 
     def say(self, message: str, *, stopping: bool = False) -> None:
@@ -173,14 +182,18 @@ class Screen:
 
     def update(self, hint: str = "", *, force: bool = False) -> None:
         now = time.monotonic()
-        if self._live is not None:
-            if force or now - self._last >= 0.1:
-                self._last = now
-                self._live.update(self._lines(hint))
-                self._live.refresh()
-        elif force or now - self._last >= 1.0:
-            self._last = now
-            out.print(self.summary())
+        if not (force or self._redraws.due(now)):
+            return
+        live = self._live
+        if live is not None:
+
+            def drawing() -> None:
+                live.update(self._lines(hint))
+                live.refresh()
+
+            self._redraws.draw(now, drawing)
+        else:
+            self._redraws.draw(now, lambda: out.print(self.summary()))
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
