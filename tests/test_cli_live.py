@@ -720,3 +720,14 @@ def test_a_live_view_draws_less_often_where_a_drawing_takes_long() -> None:
     assert not redraws.due(5.1 + 0.08 / DRAW_SHARE - 0.001) and redraws.due(5.1 + 0.08 / DRAW_SHARE)
     later = Redraws(1.0, first=7.0)  # (a log's first line after a second, with a rate measured)
     assert not later.due(6.9) and later.due(7.0)
+
+
+def test_a_logged_monitor_keeps_its_end_tables_title_whole(cli: Any) -> None:
+    # Into a file, the table at the end had its title cut at the table's width: "monitor sim://?ids=1-4&realtime="
+    # (a port's path cut short reads as another's; a log's lines stay whole however long).
+    result = cli("--port", "sim://?ids=1-4&realtime=1", "monitor", "1-4", "--free", "--seconds", "1.2")
+    assert result.code == 0, result.err
+    title = "monitor sim://?ids=1-4&realtime=1 at 115200 baud (ICS 3.5 servos free)"
+    lines = result.out.splitlines()
+    table = next(k for k, line in enumerate(lines) if line.split()[:2] == ["ID", "pos"])
+    assert title in [line.strip() for line in lines[table - 3 : table]], result.out

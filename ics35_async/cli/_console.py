@@ -165,7 +165,13 @@ def printed_table(table: Table, leave_out: Sequence[str] = (), *, indent: int = 
     a column left out or a value cut to fit is lost for good."""
     if out.is_terminal:
         return Padding(FittedTable(table, leave_out), (0, 0, 0, indent), expand=False)
-    return _AtItsOwnWidth(Padding(table, (0, 0, 0, indent), expand=False))
+    if table.title is None:
+        return _AtItsOwnWidth(Padding(table, (0, 0, 0, indent), expand=False))
+    # Its title a line of its own: rich cuts a table's title at the table's width ("monitor /tmp/ics35-sim-x/t").
+    title = Text.from_markup(table.title) if isinstance(table.title, str) else table.title
+    untitled = copy.copy(table)
+    untitled.title = None
+    return _AtItsOwnWidth(Group(*(Padding(part, (0, 0, 0, indent), expand=False) for part in (title, untitled))))
 
 
 class _AtItsOwnWidth:
