@@ -165,13 +165,14 @@ def printed_table(table: Table, leave_out: Sequence[str] = (), *, indent: int = 
     a column left out or a value cut to fit is lost for good."""
     if out.is_terminal:
         return Padding(FittedTable(table, leave_out), (0, 0, 0, indent), expand=False)
-    if table.title is None:
-        return _AtItsOwnWidth(Padding(table, (0, 0, 0, indent), expand=False))
-    # Its title a line of its own: rich cuts a table's title at the table's width ("monitor /tmp/ics35-sim-x/t").
-    title = Text.from_markup(table.title) if isinstance(table.title, str) else table.title
-    untitled = copy.copy(table)
-    untitled.title = None
-    return _AtItsOwnWidth(Group(*(Padding(part, (0, 0, 0, indent), expand=False) for part in (title, untitled))))
+    parts: list[RenderableType] = [table]
+    if table.title is not None:
+        # Its title a line of its own: rich cuts a table's title at the table's width ("monitor /tmp/ics35-sim-x/t").
+        title = Text.from_markup(table.title) if isinstance(table.title, str) else table.title
+        untitled = copy.copy(table)
+        untitled.title = None
+        parts = [title, untitled]
+    return _AtItsOwnWidth(Group(*(Padding(part, (0, 0, 0, indent), expand=False) for part in parts)))
 
 
 class _AtItsOwnWidth:
@@ -474,6 +475,12 @@ class Redraws:
         self.every = every
         self.clock = clock
         self._next = first
+
+    @classmethod
+    def of_view(cls, on_terminal: bool, now: float) -> Redraws:
+        """A view's: on a terminal, ten drawings a second from ``now`` on; into a log, a line a second, the first
+        a second after ``now`` (with a rate measured by then: a line at once would say 0 Hz)."""
+        return cls(0.1) if on_terminal else cls(1.0, first=now + 1.0)
 
     def due(self, now: float) -> bool:
         """Whether a drawing is due at ``now`` (the caller's clock)."""

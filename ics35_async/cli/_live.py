@@ -106,9 +106,7 @@ async def run_live(
     tty = out.is_terminal and not options.as_json
     live = live_view(auto_refresh=False, transient=False, vertical_overflow="visible") if tty else None
     start = loop.time()
-    # A terminal gets a table at once; a log or --json gets its first line after a second, with a
-    # measured rate (a line at t=0 would say 0 Hz).
-    redraws = Redraws(0.1) if tty else Redraws(1.0, first=start + 1.0)
+    redraws = Redraws.of_view(tty, start)  # (a log's and --json's first line a second on: see Redraws.of_view)
     deadline = None if options.seconds is None else start + options.seconds
 
     def render(final: bool = False, hint: str = "   Ctrl-C to stop") -> None:

@@ -146,7 +146,7 @@ class Screen:
         self.title = title
         self.tty = out.is_terminal
         self._live = live_view(auto_refresh=False, transient=False) if self.tty else None
-        self._redraws = Redraws(0.1) if self._live is not None else Redraws(1.0, first=time.monotonic() + 1.0)
+        self._redraws = Redraws.of_view(self._live is not None, time.monotonic())
         self._said = ""
 
     def say(self, message: str, *, stopping: bool = False) -> None:
@@ -182,18 +182,15 @@ class Screen:
 
     def update(self, hint: str = "", *, force: bool = False) -> None:
         now = time.monotonic()
-        if not (force or self._redraws.due(now)):
-            return
-        live = self._live
-        if live is not None:
+        if force or self._redraws.due(now):
+            self._redraws.draw(now, lambda: self._draw(hint))
 
-            def drawing() -> None:
-                live.update(self._lines(hint))
-                live.refresh()
-
-            self._redraws.draw(now, drawing)
+    def _draw(self, hint: str) -> None:
+        if self._live is not None:
+            self._live.update(self._lines(hint))
+            self._live.refresh()
         else:
-            self._redraws.draw(now, lambda: out.print(self.summary()))
+            out.print(self.summary())
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
