@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import os
 import re
@@ -16,10 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from rich.console import Console
 
 from ics35_async import open_bus
 from ics35_async.cli import ExitCode
-from ics35_async.cli._console import DRAW_SHARE, Redraws, TitleInParts
+from ics35_async.cli._console import DRAW_SHARE, Redraws, StatusLine, TitleInParts
 from ics35_async.cli._live_view import LiveState
 from ics35_async.cli._telemetry import Telemetry
 from ics35_async.sim import VirtualLine, VirtualServo
@@ -731,3 +733,24 @@ def test_a_logged_monitor_keeps_its_end_tables_title_whole(cli: Any) -> None:
     lines = result.out.splitlines()
     table = next(k for k, line in enumerate(lines) if line.split()[:2] == ["ID", "pos"])
     assert title in [line.strip() for line in lines[table - 3 : table]], result.out
+
+
+@pytest.mark.parametrize("columns", [40, *range(50, 111, 3)])
+def test_a_status_line_breaks_between_its_fields_not_inside_one(columns: int) -> None:
+    # At 82 columns monitor's status with its port lost read "... waiting for it to come back  errors" / "0   Ctrl-C
+    # to stop": a count on a line of its own, its label at the end of the one above; at 70, "... to come" / "back".
+    state = LiveState([1, 2], TitleInParts(("monitor",), frozenset()), 10.0, cycle=412, elapsed=3.0, lost_at=0.5)
+    telemetry = Telemetry(None, [1, 2], 1)  # type: ignore[arg-type]  (no bus: nothing read, no error counted)
+    fields = ["t=  3.0/10 s", "cycle 412", "port lost for 2.5 s: waiting for it to come back", "errors 0"]
+    text = state.summary(telemetry) + "   Ctrl-C to stop"
+    assert text == "  ".join(fields) + "   Ctrl-C to stop", text
+    console = Console(width=columns, file=io.StringIO(), color_system=None)
+    console.print(StatusLine(text))
+    lines = [line.rstrip() for line in console.file.getvalue().splitlines()]  # type: ignore[attr-defined]
+    assert " ".join(" ".join(lines).split()) == " ".join(text.split()), lines  # (the same words, none cut)
+    assert all(len(line) <= columns for line in lines), lines
+    for field in [*fields, "Ctrl-C to stop"]:
+        if len(field) <= columns:
+            assert any(field in line for line in lines), (field, lines)
+    if columns < len(fields[2]):  # (a field wider than the terminal: on lines of its own, broken between its words)
+        assert lines[1].startswith("port lost") and any(line.startswith("errors 0") for line in lines), lines

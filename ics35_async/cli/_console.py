@@ -65,6 +65,32 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
+# Between two fields of a status line: two spaces or more before a word ("cycle 412  errors 0"), not those that
+# pad a number to its width ("t=  3.0 s", "rate  35.8 Hz").
+_FIELD_BREAK = re.compile(r"( {2,})(?=[^\W\d_])")
+
+
+class StatusLine:
+    """``text``, a live view's status line (fields such as ``cycle 412  errors 0``, two spaces apart), wrapped at
+    the width it is drawn at between its fields, a field wider than that between its words: wrapped at words,
+    a count went to the next line without its label ("... waiting for it to come back  errors" / "0")."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        width = options.max_width
+        parts = _FIELD_BREAK.split(self.text)
+        line = parts[0]
+        for gap, field in zip(parts[1::2], parts[2::2], strict=True):
+            if cell_len(line + gap + field) <= width:
+                line += gap + field
+            else:
+                yield wrapped_at_width(Text(line))
+                line = field
+        yield wrapped_at_width(Text(line))
+
+
 def print_heading(line: str) -> None:
     """``line`` (plain text: what a table shows) printed above its table, wrapped between its words on a terminal,
     whole into a log.  Not the table's title: rich cuts a title at the table's width ("...in their EEPROM (l")."""

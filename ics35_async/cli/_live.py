@@ -16,7 +16,6 @@ from typing import Any, TypeVar
 
 import click
 from rich.markup import escape
-from rich.text import Text
 
 from .. import protocol
 from ..bus import Bus
@@ -42,6 +41,7 @@ from ._common import (
 from ._console import (
     LiveTable,
     Redraws,
+    StatusLine,
     ids_argument,
     library_warnings_said,
     live_view,
@@ -49,7 +49,6 @@ from ._console import (
     say,
     say_labelled,
     scan_progress,
-    wrapped_at_width,
 )
 from ._live_view import LEAVE_OUT, LiveState
 from ._plot import Recorder, check_plot_path
@@ -115,7 +114,7 @@ async def run_live(
             emit_json({**state.snapshot(telemetry), "final": final})
         elif live is not None:
             hint = "" if final else hint
-            status = wrapped_at_width(Text(state.summary(telemetry) + hint))
+            status = StatusLine(state.summary(telemetry) + hint)
             table = state.table(telemetry, options.with_targets)
             live.update(LiveTable(table, state.title, [status], leave_out=LEAVE_OUT, noun="servos"))
             live.refresh()

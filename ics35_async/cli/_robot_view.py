@@ -26,6 +26,7 @@ from ._common import out
 from ._console import (
     LiveTable,
     Redraws,
+    StatusLine,
     TitleInParts,
     live_view,
     printed_table,
@@ -172,7 +173,7 @@ class Screen:
 
     def _lines(self, hint: str) -> LiveTable:
         said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
-        status = wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip()))
+        status = StatusLine(f"{self.summary()}   {hint}".rstrip())
         return LiveTable(self.render(), self.title, [*said, status], leave_out=LEAVE_OUT, noun="joints")
 
     def __enter__(self) -> Screen:
