@@ -1702,3 +1702,63 @@ def test_monitor_json_stopped_with_ctrl_c_on_a_terminal_ends_with_a_line_that_pa
     assert code == 0, screen
     last = json.loads(screen[-1])
     assert last["final"] is True, screen[-1]
+
+
+@pytest.mark.parametrize("json_output", [False, True], ids=["text", "json"])
+def test_ctrl_c_during_free_all_names_the_servos_it_freed_and_those_that_may_still_hold(
+    tmp_path: Path, json_output: bool
+) -> None:
+    # A robot of 8 servos: "free all" asks the 24 empty IDs after them too, each a short wait.  Ctrl-C typed as it
+    # asks the empty ones said only "error: interrupted": servos 0-7 had gone limp, and nothing said so, nor which
+    # might still hold.
+    record = tmp_path / "wire.txt"
+    url = f"sim://ctrl-c-free?ids=0-7&realtime=1&turnaround={scaled(0.05)}&record={record}"
+    json_option = ["--json"] if json_output else []
+    out = tmp_path / "out.json"
+    code, written = typed_on_a_terminal(
+        ["-v", "--port", url, "--timeout", str(scaled(0.5)), "free", "all", *json_option],
+        [("free to ID 10:", b"\x03")],
+        stdout=out if json_output else None,
+    )
+    screen = screen_of(written)
+    said = "\n".join(screen)
+    assert code == 130, said
+    assert "Traceback" not in written, said
+    freed_on_the_wire = set(torque_commands_sent(record))
+    assert set(range(11)) <= freed_on_the_wire, freed_on_the_wire  # (then Ctrl-C: ID 11's, perhaps, and no more)
+    if json_output:
+        report = json.loads(out.read_text())
+        said_free = {int(i) for i in report["freed"]}
+        assert report["interrupted"] is True and report["not_freed"] == list(range(8, 32)), report
+    else:
+        said_free = {int(m.group(1)) for line in screen if (m := re.match(r"servo (\d+): free at \d+ ", line))}
+    assert said_free == set(range(8)), said
+    flat = " ".join(said.split())  # (the error wrapped at words, its further lines indented)
+    error = flat[flat.index("error: interrupted") :]
+    assert "servo(s) 0-7 went free" in error and "ID(s) 8-31" in error and "may still hold" in error, said
+
+
+# Ctrl-C as Python ends, the command over and its words said (typed just as `free` printed its last servo): Python
+# puts its own handler back to the default as it ends, and a press in those last milliseconds killed the process by
+# SIGINT (the shell saw 130, with not a word) instead of ending with the command's exit code.  Nothing is left to
+# interrupt by then: the last of Python's exit steps (this script's first atexit hook runs last) must find Ctrl-C
+# ignored, whatever the command's end.
+_HANDLER_AS_PYTHON_ENDS = """
+import atexit, signal, sys
+atexit.register(lambda: print("Ctrl-C as Python ends:", signal.getsignal(signal.SIGINT), file=sys.stderr))
+from ics35_async.cli import main
+main(sys.argv[1:])
+"""
+
+
+@pytest.mark.parametrize(
+    "args", [["free", "1"], ["get", "9", "speed"], ["free", "--bogus"]], ids=["done", "failed", "usage"]
+)
+def test_ctrl_c_as_python_ends_cannot_kill_a_command_that_has_ended(args: list[str]) -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _HANDLER_AS_PYTHON_ENDS, "--port", "sim://", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.stderr.splitlines()[-1] == f"Ctrl-C as Python ends: {signal.SIG_IGN}", done.stderr

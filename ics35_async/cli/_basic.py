@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -21,6 +23,7 @@ from ._common import (
     CliError,
     ExitCode,
     NobodyAnswered,
+    Settings,
     SignedValuesCommand,
     current_json,
     current_text,
@@ -37,7 +40,7 @@ from ._common import (
     temperature_text,
     translate,
 )
-from ._console import print_heading, say
+from ._console import ids_argument, print_heading, say
 from ._eeprom_view import eeprom_table
 from ._targets import parse_target, refuse_outside_pulse_limits
 
@@ -209,10 +212,22 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         raise click.BadParameter(exc.message, param_hint="IDS") from None
 
     every_servo = every_id(wanted)  # "all": the servos on the line, whichever they are
+    freed_so_far: dict[int, int] = {}  # (what a Ctrl-C part-way leaves to say: see below)
 
-    async def body() -> policies.FreeReport:
+    async def body() -> policies.FreeReport | None:
+        task = asyncio.current_task()
+        report = None
         async with settings.bus() as bus:
-            report = await policies.free_servos(bus, wanted, every_servo=every_servo)
+            with contextlib.suppress(asyncio.CancelledError):
+                report = await policies.free_servos(
+                    bus, wanted, every_servo=every_servo, on_freed=freed_so_far.__setitem__
+                )
+            # Ctrl-C (the task cancelled): the servos freed so far are said before the command ends (exit code 130),
+            # the line closed as usual first.
+            while task is not None and task.cancelling():
+                task.uncancel()
+        if report is None:
+            return None
         if not report.freed and not report.unknown and len(report.failed) == len(wanted):
             if every_servo and all(isinstance(e, ReplyTimeout) for e in report.failed.values()):
                 # No servo at all at this rate: perhaps at another (not servo 0's no-reply diagnosis)
@@ -222,6 +237,8 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         return report
 
     report = run(settings, body)
+    if report is None:
+        raise _interrupted_freeing(settings, wanted, freed_so_far, as_json=as_json, every_servo=every_servo)
     if as_json:
         emit_json(
             {
@@ -264,6 +281,32 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
                 hints += [hint for hint in translate(settings, e).hints if hint not in hints]
         raise CliError(code, f"servo(s) {ids_text(report.failed)} did not go free", *hints)
     return 0
+
+
+def _interrupted_freeing(
+    settings: Settings, wanted: list[int], freed: dict[int, int], *, as_json: bool, every_servo: bool
+) -> CliError:
+    """Ctrl-C while ``free`` ran: the servos that answered that they went free are printed as ``free`` prints
+    them, and the error names the rest, which may still hold (one the press cut short may have gone free; an ID
+    "all" had not reached yet may be an empty one), with the command that frees them."""
+    left = [i for i in wanted if i not in freed]
+    freed = dict(sorted(freed.items()))
+    if as_json:
+        emit_json({"freed": {str(i): p for i, p in freed.items()}, "not_freed": left, "interrupted": True})
+    else:
+        for i, p in freed.items():
+            say(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})", to=out)
+    went = f"servo(s) {id_ranges(freed)} went free" if freed else "no servo had answered that it went free"
+    if not left:
+        return CliError(ExitCode.INTERRUPTED, f"interrupted: {went}, every one asked for")
+    who = "a servo among them" if every_servo else "they"
+    error = CliError(
+        ExitCode.INTERRUPTED,
+        f"interrupted: {went}; {'ID' if every_servo else 'servo'}(s) {id_ranges(left)} not freed: {who} may still "
+        "hold (torque on)",
+    )
+    error.hints.append(f"free them with: {settings.command_line('free', ids_argument(left))}")
+    return error
 
 
 def _garbled(exc: Exception) -> bool:

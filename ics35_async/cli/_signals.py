@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import _thread
 import asyncio
+import atexit
 import contextlib
 import signal
 import sys
@@ -48,6 +49,22 @@ def install() -> None:
         if signal.getsignal(signum) is signal.SIG_DFL:
             signal.signal(signum, _stop)
     keep_dropped_ctrl_c()
+    if not _ending:
+        _ending.append(atexit.register(_nothing_left_to_interrupt))
+
+
+_ending: list[object] = []  # _nothing_left_to_interrupt, once registered
+
+
+def _nothing_left_to_interrupt() -> None:
+    """Python's last steps, the command over and its words said (registered as the command began, so run after
+    the exit hooks of what it used): Ctrl-C is ignored from here.  Python puts its own handler back to the
+    default as it ends, and a press in those milliseconds (typed as ``free`` printed its last servo) killed the
+    process by SIGINT, the shell seeing 130 with not a word, where the command had ended with its own code."""
+    from ..running import _ignore  # (here: every command starts with only the light front)
+
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        _ignore(signal.SIGINT)
 
 
 def keep_dropped_ctrl_c() -> None:

@@ -25,7 +25,7 @@ a slow servo the caller expects must not be called absent.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 from .. import protocol
@@ -58,7 +58,13 @@ class FreeReport:
         return not self.failed and self.lost is None
 
 
-async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = False) -> FreeReport:
+async def free_servos(
+    line: Line,
+    ids: Iterable[int],
+    *,
+    every_servo: bool = False,
+    on_freed: Callable[[int, int], object] | None = None,
+) -> FreeReport:
     """Send the free command to each of ``ids`` (queued at once: the line runs them back to back).
 
     With ``every_servo`` the IDs are every servo there may be, not servos the
@@ -66,6 +72,9 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     the module), and a silent one is ``absent``, unless none answered at all.
     A line lost part-way does not raise: the servos freed before it are in
     ``freed``, the rest in ``unknown``, the loss in ``lost``.
+    ``on_freed(id, position)`` is called as each servo answers that it went
+    free: what a caller cancelled part-way (Ctrl-C) knows was done, as no
+    report is returned then.
 
     Raises:
         InvalidArgument: an ID is not 0..31.
@@ -73,14 +82,17 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     wanted = sorted({protocol.check_id(i) for i in ids})
     outcomes: dict[int, int | IcsError] = {}
     if every_servo:
-        await _free_every_servo(line, wanted, outcomes)
+        await _free_every_servo(line, wanted, outcomes, on_freed)
     else:
 
         async def free_one(sid: int) -> None:
             try:
-                outcomes[sid] = await Servo(line, sid).free()
+                outcomes[sid] = position = await Servo(line, sid).free()
             except IcsError as exc:
                 outcomes[sid] = exc
+            else:
+                if on_freed is not None:
+                    on_freed(sid, position)
 
         async with task_group() as group:
             for sid in wanted:
@@ -97,8 +109,14 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     return FreeReport(freed, failed, absent, unknown, lost)
 
 
-async def _free_every_servo(line: Line, wanted: list[int], outcomes: dict[int, int | IcsError]) -> None:
-    """Free each of ``wanted`` as a scan probes (see the module), into ``outcomes`` (ID -> position or error).
+async def _free_every_servo(
+    line: Line,
+    wanted: list[int],
+    outcomes: dict[int, int | IcsError],
+    on_freed: Callable[[int, int], object] | None,
+) -> None:
+    """Free each of ``wanted`` as a scan probes (see the module), into ``outcomes`` (ID -> position or error),
+    calling ``on_freed`` as each goes free.
 
     A line lost part-way leaves its error at every ID not answered by then (free or still holding).
     """
@@ -110,6 +128,8 @@ async def _free_every_servo(line: Line, wanted: list[int], outcomes: dict[int, i
         try:
             position: int = await line.request(command, retries=0)
             outcomes[sid] = position
+            if on_freed is not None:
+                on_freed(sid, position)
         except ReplyError as exc:
             outcomes[sid] = exc
             return exc
