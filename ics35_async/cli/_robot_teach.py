@@ -419,6 +419,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     opening = Opening()
     eeproms: dict[str, Eeprom] = {}
     silent: set[str] = set()  # joints offline at some frame of step 2
+    away: set[str] = set()  # joints offline as of the newest frame of step 2
     lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
 
     def extra(name: str) -> list[str]:
@@ -482,7 +483,19 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                 while True:
                     frame = await robot.wait_frame(cycle)
                     cycle = frame.cycle
-                    silent.update(name for name in frame.offline if name in names)  # (its range may be cut short)
+                    offline = {name for name in frame.offline if name in names}
+                    # Said at once: the person can sweep again what a joint missed while it was silent (told only
+                    # at Enter, the range they had swept was lost).
+                    for name in sorted(offline - away):
+                        screen.say_more(
+                            f"[yellow]warning:[/yellow] joint {escape(name)} stopped answering: its range is not "
+                            "read meanwhile (once it answers again, move it through what it missed)"
+                        )
+                    for name in sorted(away - offline):
+                        screen.say_more(f"joint {escape(name)} answers again: move it through what it missed")
+                    away.clear()
+                    away.update(offline)
+                    silent.update(offline)
                     track(frame)
 
             # Each servo's REVERSE flag (below) and pulse limits (after the ranges); not of the joints the open found
@@ -531,6 +544,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                         with contextlib.suppress(asyncio.CancelledError):
                             await tracking
                     track(robot.latest)
+                    if robot.latest is not None:
+                        away.clear()
+                        away.update(name for name in robot.latest.offline if name in names)
                 finally:
                     watcher.cancel()
                     with contextlib.suppress(asyncio.CancelledError, IcsError):
@@ -561,13 +577,20 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         if name not in neutral or name not in low:
             say_labelled("[yellow]warning:[/yellow]", f"joint {escape(name)} did not answer: not calibrated")
             continue
-        if name in silent:
+        if name in away:  # (silent still at Enter: a plug worked loose, its range likely cut short)
             say_labelled(
                 "[yellow]warning:[/yellow]",
                 f"joint {escape(name)} stopped answering during step 2: not calibrated "
                 "(its range may be cut short; calibrate it again with --joints)",
             )
             continue
+        if name in silent:  # (answering again: what it missed was said at once, to be swept again)
+            say_labelled(
+                "[yellow]warning:[/yellow]",
+                f"joint {escape(name)} stopped answering for a moment during step 2: its range is what was seen "
+                f"while it answered (narrower than the joint's, if it missed an end: calibrate it again with "
+                f"--joints {escape(name)} then)",
+            )
         try:
             calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
         except NarrowRange as exc:
@@ -587,7 +610,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             "to calibrate some joints only: --joints NAME,NAME",
         )
     if not calibrated:
-        raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
+        raise CliError(ExitCode.NO_REPLY, "no joint was calibrated (the warnings above say why): nothing written")
     for name, joint in calibrated.items():
         # The offset as written: on a whole count, up to 5 decimals (limits are rounded inward to 0.1 degree).
         offset, least, most = signed_count_angle(joint.offset), signed_tenths(joint.min), signed_tenths(joint.max)

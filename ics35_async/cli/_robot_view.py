@@ -162,6 +162,15 @@ class Screen:
         self._said = message
         self.update(force=True)
 
+    def say_more(self, line: str) -> None:
+        """A further note under what :meth:`say` said: on a terminal the view's note grows by this line; into a log
+        the line alone is written."""
+        if self._live is None:
+            say(line)
+            return
+        self._said = f"{self._said}\n{line}" if self._said else line
+        self.update(force=True)
+
     def typed(self, line: str) -> None:
         """``line`` was typed on the terminal: echoed on the live view's empty last line (where the cursor rests:
         see ``live_view``), it and its newline moved the cursor below, so the next redraw would start that low and
