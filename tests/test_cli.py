@@ -449,6 +449,16 @@ def test_a_device_name_without_its_directory_is_named_with_it(cli: Any) -> None:
     assert "a device path starts with /dev/: /dev/ttyUSB0" in result.err, result.err
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="device paths are POSIX ones")
+@pytest.mark.parametrize("port", ["tty1", "tty"])
+def test_a_name_that_is_no_serial_ports_is_not_sent_to_a_terminals_device(cli: Any, port: str) -> None:
+    # `port = "tty1"` in a robot file (a link beside it, the command run from elsewhere) was told "a device path
+    # starts with /dev/: /dev/tty1": Linux's text console, not a serial adapter.
+    result = cli("--port", port, "info", "1")
+    assert result.code == ExitCode.PORT
+    assert "a device path starts with" not in result.err and f"/dev/{port} " not in result.err, result.err
+
+
 @pytest.mark.parametrize("port", ["sim:/?ids=1-6", "sim:?ids=1-6", "socket:/localhost:4000", "rfc2217:host:2217"])
 def test_a_url_with_its_slashes_mistyped_is_named_as_such(cli: Any, port: str) -> None:
     # `sim:/?ids=1-6` was a port not found, with advice about the cable.
