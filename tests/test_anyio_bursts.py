@@ -77,7 +77,12 @@ async def test_a_stream_runs_in_bursts_beside_requests_that_get_their_own_replie
                     group.start_soon(reads)
             # (A read arriving mid-burst stops it at its next boundary: bursts beside reads are short.)
             assert beside[0] > 10 and runner.transactions >= runner.bursts, (beside, runner.bursts, runner.transactions)
-            assert all(whole[5:]) and len(answered) > 100, (whole, len(answered), bus.stats.total)
+            # From the first frame with every servo at its target on, every frame is so (a reply misattributed
+            # would show another position); on a loaded machine a transaction failed in the first cycles put that
+            # first frame past the fifth once (a servo sits out until its late reply could no longer come).
+            first = whole.index(True) if True in whole else len(whole)
+            assert first < 50 and all(whole[first:]), (first, whole, bus.stats.total)
+            assert len(answered) > 100, (len(answered), bus.stats.total)
 
 
 @on_trio_and_asyncio
