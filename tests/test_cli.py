@@ -442,11 +442,12 @@ def test_a_windows_port_name_elsewhere_is_named_as_such(cli: Any) -> None:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="device paths are POSIX ones")
-def test_a_device_name_without_its_directory_is_named_with_it(cli: Any) -> None:
+@pytest.mark.parametrize("port", ["ttyUSB0", "ttyACM1", "tty.usbserial-A1", "cu.usbserial-A1"])
+def test_a_device_name_without_its_directory_is_named_with_it(cli: Any, port: str) -> None:
     # `--port ttyUSB0`: the person meant /dev/ttyUSB0 (which exists on this machine or not).
-    result = cli("--port", "ttyUSB0", "info", "1")
+    result = cli("--port", port, "info", "1")
     assert result.code == ExitCode.PORT
-    assert "a device path starts with /dev/: /dev/ttyUSB0" in result.err, result.err
+    assert f"a device path starts with /dev/: /dev/{port}" in result.err, result.err
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="device paths are POSIX ones")

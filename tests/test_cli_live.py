@@ -754,3 +754,24 @@ def test_a_status_line_breaks_between_its_fields_not_inside_one(columns: int) ->
             assert any(field in line for line in lines), (field, lines)
     if columns < len(fields[2]):  # (a field wider than the terminal: on lines of its own, broken between its words)
         assert lines[1].startswith("port lost") and any(line.startswith("errors 0") for line in lines), lines
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        ["t=    - s (the first pose is at 1 s)", "12 pose(s) captured"],  # teach's: a field may start with a count
+        ["t=  2.5/10 s", "motion  2.5/4.0 s", "pass 2", "cycle 40"],  # play's: numbers padded after a label
+        ["t=  3.0 s", "cycle 9", "rate  35.8 of 100 Hz (avg  35.7)", "answering 2/2", "errors 0"],
+    ],
+    ids=["teach", "play", "monitor"],
+)
+def test_a_status_line_tells_its_fields_from_a_number_padded_to_its_width(fields: list[str]) -> None:
+    # teach's "... (the first pose is at 1 s)  12" / "pose(s) captured" at 40 columns: a count cut from its words.
+    text = "  ".join(fields)
+    for columns in range(20, len(text) + 2):
+        console = Console(width=columns, file=io.StringIO(), color_system=None)
+        console.print(StatusLine(text))
+        lines = [line.rstrip() for line in console.file.getvalue().splitlines()]  # type: ignore[attr-defined]
+        for field in fields:
+            if len(field) <= columns:
+                assert any(field in line for line in lines), (columns, field, lines)

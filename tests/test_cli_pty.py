@@ -1704,9 +1704,11 @@ def test_monitor_json_stopped_with_ctrl_c_on_a_terminal_ends_with_a_line_that_pa
     assert last["final"] is True, screen[-1]
 
 
-@pytest.mark.parametrize("json_output", [False, True], ids=["text", "json"])
+@pytest.mark.parametrize(
+    ("json_output", "presses"), [(False, 1), (True, 1), (False, 2)], ids=["text", "json", "double-press"]
+)
 def test_ctrl_c_during_free_all_names_the_servos_it_freed_and_those_that_may_still_hold(
-    tmp_path: Path, json_output: bool
+    tmp_path: Path, json_output: bool, presses: int
 ) -> None:
     # A robot of 8 servos: "free all" asks the 24 empty IDs after them too, each a short wait.  Ctrl-C typed as it
     # asks the empty ones said only "error: interrupted": servos 0-7 had gone limp, and nothing said so, nor which
@@ -1717,7 +1719,8 @@ def test_ctrl_c_during_free_all_names_the_servos_it_freed_and_those_that_may_sti
     out = tmp_path / "out.json"
     code, written = typed_on_a_terminal(
         ["-v", "--port", url, "--timeout", str(scaled(0.5)), "free", "all", *json_option],
-        [("free to ID 10:", b"\x03")],
+        # (a second press, forcing the command out as its line closes, must not lose the account either)
+        [("free to ID 10:", b"\x03"), *[(0.002, b"\x03")] * (presses - 1)],
         stdout=out if json_output else None,
     )
     screen = screen_of(written)
@@ -1736,6 +1739,7 @@ def test_ctrl_c_during_free_all_names_the_servos_it_freed_and_those_that_may_sti
     flat = " ".join(said.split())  # (the error wrapped at words, its further lines indented)
     error = flat[flat.index("error: interrupted") :]
     assert "servo(s) 0-7 went free" in error and "ID(s) 8-31" in error and "may still hold" in error, said
+    assert error.endswith(" free all"), said  # (named, the empty IDs 8-31 would each be waited for, and fail)
 
 
 # Ctrl-C as Python ends, the command over and its words said (typed just as `free` printed its last servo): Python

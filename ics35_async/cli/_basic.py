@@ -222,11 +222,12 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
                 report = await policies.free_servos(
                     bus, wanted, every_servo=every_servo, on_freed=freed_so_far.__setitem__
                 )
-            # Ctrl-C (the task cancelled): the servos freed so far are said before the command ends (exit code 130),
-            # the line closed as usual first.
+            # Ctrl-C (the task cancelled; a request it cut short may have ended otherwise): the servos freed so far
+            # are said before the command ends (exit code 130), the line closed as usual first.
+            interrupted = task is not None and task.cancelling() > 0
             while task is not None and task.cancelling():
                 task.uncancel()
-        if report is None:
+        if report is None or interrupted:
             return None
         if not report.freed and not report.unknown and len(report.failed) == len(wanted):
             if every_servo and all(isinstance(e, ReplyTimeout) for e in report.failed.values()):
@@ -236,7 +237,13 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
             raise next(iter(report.failed.values()))  # nothing answered: the no-reply diagnosis
         return report
 
-    report = run(settings, body)
+    try:
+        report = run(settings, body)
+    except CliError as exc:
+        if exc.code != ExitCode.INTERRUPTED:
+            raise
+        # A press as the line opened or closed, or a second one forcing the command out: what went free is said.
+        report = None
     if report is None:
         raise _interrupted_freeing(settings, wanted, freed_so_far, as_json=as_json, every_servo=every_servo)
     if as_json:
@@ -305,7 +312,9 @@ def _interrupted_freeing(
         f"interrupted: {went}; {'ID' if every_servo else 'servo'}(s) {id_ranges(left)} not freed: {who} may still "
         "hold (torque on)",
     )
-    error.hints.append(f"free them with: {settings.command_line('free', ids_argument(left))}")
+    # ("all" again for every servo: named, the empty IDs among the rest would each be waited for and fail)
+    again = "all" if every_servo else ids_argument(left)
+    error.hints.append(f"free them with: {settings.command_line('free', again)}")
     return error
 
 

@@ -65,11 +65,6 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
-# Between two fields of a status line: two spaces or more before a word ("cycle 412  errors 0"), not those that
-# pad a number to its width ("t=  3.0 s", "rate  35.8 Hz").
-_FIELD_BREAK = re.compile(r"( {2,})(?=[^\W\d_])")
-
-
 class StatusLine:
     """``text``, a live view's status line (fields such as ``cycle 412  errors 0``, two spaces apart), wrapped at
     the width it is drawn at between its fields, a field wider than that between its words: wrapped at words,
@@ -78,11 +73,30 @@ class StatusLine:
     def __init__(self, text: str) -> None:
         self.text = text
 
+    def fields(self) -> list[tuple[str, str]]:
+        """The text's fields, each with the gap before it (the first's empty).  Two spaces or more part two fields
+        before a word ("cycle 412  errors 0") or before a count that does not follow a label ("... at 1 s)  12
+        pose(s) captured"); not those that pad a number to its width after one ("t=  3.0 s", "rate  35.8 Hz",
+        "(avg  35.7)")."""
+        text, start = self.text, 0
+        found: list[re.Match[str]] = []
+        for gap in re.finditer(r" {2,}", text):
+            after, before = text[gap.end() : gap.end() + 1], text[gap.start() - 1 : gap.start()]
+            if after.isalpha() or (after.isdigit() and not (before.isalpha() or before in "=(")):
+                found.append(gap)
+        parts: list[str] = []
+        gaps = [""]
+        for gap in found:
+            parts.append(text[start : gap.start()])
+            gaps.append(gap.group())
+            start = gap.end()
+        parts.append(text[start:])
+        return list(zip(gaps, parts, strict=True))
+
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         width = options.max_width
-        parts = _FIELD_BREAK.split(self.text)
-        line = parts[0]
-        for gap, field in zip(parts[1::2], parts[2::2], strict=True):
+        (_, line), *rest = self.fields()
+        for gap, field in rest:
             if cell_len(line + gap + field) <= width:
                 line += gap + field
             else:

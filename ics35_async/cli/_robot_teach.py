@@ -483,16 +483,18 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                 while True:
                     frame = await robot.wait_frame(cycle)
                     cycle = frame.cycle
-                    offline = {name for name in frame.offline if name in names}
+                    # (A joint with no neutral, silent at step 1, is not calibrated whatever it does now.)
+                    offline = {name for name in frame.offline if name in neutral}
                     # Said at once: the person can sweep again what a joint missed while it was silent (told only
                     # at Enter, the range they had swept was lost).
                     for name in sorted(offline - away):
-                        screen.say_more(
+                        screen.note(
+                            name,
                             f"[yellow]warning:[/yellow] joint {escape(name)} stopped answering: its range is not "
-                            "read meanwhile (once it answers again, move it through what it missed)"
+                            "read meanwhile (once it answers again, move it through what it missed)",
                         )
                     for name in sorted(away - offline):
-                        screen.say_more(f"joint {escape(name)} answers again: move it through what it missed")
+                        screen.note(name, f"joint {escape(name)} answers again: move it through what it missed")
                     away.clear()
                     away.update(offline)
                     silent.update(offline)
@@ -546,7 +548,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     track(robot.latest)
                     if robot.latest is not None:
                         away.clear()
-                        away.update(name for name in robot.latest.offline if name in names)
+                        away.update(name for name in robot.latest.offline if name in neutral)
                 finally:
                     watcher.cancel()
                     with contextlib.suppress(asyncio.CancelledError, IcsError):

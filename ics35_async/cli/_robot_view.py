@@ -149,6 +149,7 @@ class Screen:
         self._live = live_view(auto_refresh=False, transient=False) if self.tty else None
         self._redraws = Redraws.of_view(self._live is not None, time.monotonic())
         self._said = ""
+        self._notes: dict[str, str] = {}  # (see note)
 
     def say(self, message: str, *, stopping: bool = False) -> None:
         """A note for the person (on stderr); on a terminal, a line of the live view instead, since a line
@@ -162,13 +163,14 @@ class Screen:
         self._said = message
         self.update(force=True)
 
-    def say_more(self, line: str) -> None:
-        """A further note under what :meth:`say` said: on a terminal the view's note grows by this line; into a log
-        the line alone is written."""
+    def note(self, about: str, line: str) -> None:
+        """A note on ``about`` (a joint's name) under what :meth:`say` said: on a terminal a line of the view, in
+        place of the one before on the same thing (a plug that keeps working loose does not grow the view past
+        the terminal); into a log, the line written."""
         if self._live is None:
             say(line)
             return
-        self._said = f"{self._said}\n{line}" if self._said else line
+        self._notes[about] = line
         self.update(force=True)
 
     def typed(self, line: str) -> None:
@@ -181,7 +183,7 @@ class Screen:
             out.file.flush()
 
     def _lines(self, hint: str) -> LiveTable:
-        said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
+        said = [wrapped_at_width(Text.from_markup(text)) for text in [self._said, *self._notes.values()] if text]
         status = StatusLine(f"{self.summary()}   {hint}".rstrip())
         return LiveTable(self.render(), self.title, [*said, status], leave_out=LEAVE_OUT, noun="joints")
 

@@ -123,7 +123,7 @@ def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
     if port.upper().startswith("COM"):
         return ["COM names are Windows' own: here a serial port is a /dev/ path"]
     # (A serial port's name, not a terminal's: /dev/tty, /dev/tty1.. are the text consoles.)
-    if re.match(r"tty[A-Za-z]|cu\.|serial", port):
+    if re.match(r"tty[A-Za-z.]|cu\.|serial", port):
         return [f"a device path starts with /dev/: /dev/{port}"]
     return []
 
