@@ -32,7 +32,7 @@ from ics35_async.eeprom import Flags
 from ics35_async.robot import Keyframe, Motion, load_description
 from ics35_async.robot.calibration import calibrate_joint, dump_description, edit_joint_values, write_calibration
 from ics35_async.robot.profiles import LONGEST_MOTION
-from ics35_async.sim import VirtualLine
+from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import CliResult
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS_OPTION, scaled
@@ -1535,6 +1535,27 @@ def test_the_lost_line_hint_frees_that_lines_servos_by_their_ids_not_every_id() 
     assert hint.endswith("get: ics35 --port /dev/ttyUSB2 free 2-4,9"), hint
 
 
+def swing(sims: Rig, sign: int) -> Callable[[], None]:
+    """A step that turns the neck, hip and knee servos by hand to 40 servo degrees on the side of ``sign``."""
+
+    def move() -> None:
+        for name in ("neck", "hip", "knee"):
+            sims.servo(name).move_by_hand(7500 + sign * round(40 * 8000 / 270))
+
+    return move
+
+
+def plug_back(sim: VirtualLine, servo: VirtualServo) -> None:
+    """Plug ``servo`` back into ``sim``'s line and wait until it has been asked something (heard back only at its
+    next probe, one probe interval on: a count of transactions may come first)."""
+    mark = sim.transactions
+    sim.add_device(servo)
+    give_up = time.monotonic() + GUARD
+    while not any(t.responders == (servo.servo_id,) for t in sim.log_since(mark)):
+        assert time.monotonic() < give_up, f"servo {servo.servo_id}, plugged back in, was never asked"
+        threading.Event().wait(0.005)
+
+
 def until_offline(sims: Rig, joint: str) -> Callable[[], None]:
     """A step that unplugs ``joint``'s servo and waits until the robot has had time to take it out of its
     cycle (three settles' transactions on its line, the other servos answering)."""
@@ -1764,13 +1785,7 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     hip = sims.servo("hip")
 
     def back_and_swing() -> None:  # the plug is pushed back in; each joint goes through its range
-        mark = sims.lower.transactions
-        sims.lower.add_device(hip)
-        # (Heard back only at its next probe, one probe interval on: a count of transactions may come first.)
-        give_up = time.monotonic() + GUARD
-        while not any(t.responders == (hip.servo_id,) for t in sims.lower.log_since(mark)):
-            assert time.monotonic() < give_up, "the hip's servo, plugged back in, was never asked"
-            threading.Event().wait(0.005)
+        plug_back(sims.lower, hip)
         for name in ("neck", "hip", "knee"):
             sims.servo(name).move_by_hand(7500 - round(40 * 8000 / 270))
         for _ in range(3):
@@ -1810,19 +1825,12 @@ def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_WITH_KNEE.format(**ports))
 
-    def swing(sign: int) -> Callable[[], None]:
-        def move() -> None:
-            for name in ("neck", "hip", "knee"):
-                sims.servo(name).move_by_hand(7500 + sign * round(40 * 8000 / 270))
-
-        return move
-
     result = run_with_hands(
         ["calibrate", str(robot_file)],
         [
             ("neutral (every joint at 0)", None, "\n"),
-            ("whole range", swing(-1), ""),
-            (None, swing(1), ""),
+            ("whole range", swing(sims, -1), ""),
+            (None, swing(sims, 1), ""),
             (None, until_offline(sims, "hip"), "\n"),
         ],
         [sims.upper, sims.lower],
@@ -1840,8 +1848,8 @@ def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
 def test_calibrate_keeps_the_range_of_a_joint_that_stopped_answering_for_a_moment_and_says_so_at_once(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
-    # A few missed replies at step 2 (a loaded machine, a plug touched): nothing said until Enter, then "joint neck
-    # stopped answering during step 2: not calibrated" and, the only joint, "no joint answered: nothing written",
+    # A few missed replies at step 2 (a loaded machine, a plug touched): nothing said until Enter, then "joint hip
+    # stopped answering during step 2: not calibrated" (for a robot of one joint, "no joint answered"),
     # the range the person had just swept lost though the joint answered before and after.  Told at once, they
     # can sweep again what it missed; its range is what was seen while it answered.
     sims, ports = calibrating
@@ -1849,20 +1857,8 @@ def test_calibrate_keeps_the_range_of_a_joint_that_stopped_answering_for_a_momen
     robot_file.write_text(CALIBRATE_WITH_KNEE.format(**ports))
     hip = sims.servo("hip")
 
-    def swing(sign: int) -> Callable[[], None]:
-        def move() -> None:
-            for name in ("neck", "hip", "knee"):
-                sims.servo(name).move_by_hand(7500 + sign * round(40 * 8000 / 270))
-
-        return move
-
     def plugged_back() -> None:
-        mark = sims.lower.transactions
-        sims.lower.add_device(hip)
-        give_up = time.monotonic() + GUARD  # (heard back only at its next probe)
-        while not any(t.responders == (hip.servo_id,) for t in sims.lower.log_since(mark)):
-            assert time.monotonic() < give_up, "the hip's servo, plugged back in, was never asked"
-            threading.Event().wait(0.005)
+        plug_back(sims.lower, hip)
         for _ in range(3):
             settle_on(sims.lower)
 
@@ -1870,10 +1866,10 @@ def test_calibrate_keeps_the_range_of_a_joint_that_stopped_answering_for_a_momen
         ["calibrate", str(robot_file)],
         [
             ("neutral (every joint at 0)", None, "\n"),
-            ("whole range", swing(-1), ""),
+            ("whole range", swing(sims, -1), ""),
             (None, until_offline(sims, "hip"), ""),
             ("joint hip stopped answering", plugged_back, ""),  # (said as it happened, not at Enter)
-            ("joint hip answers again", swing(1), "\n"),
+            ("joint hip answers again", swing(sims, 1), "\n"),
         ],
         [sims.upper, sims.lower],
     )
