@@ -1358,6 +1358,26 @@ def test_a_held_servo_that_stopped_answering_is_neither_jogged_nor_streamed_its_
     assert unplugged.free and unplugged.position == 6000
 
 
+def test_a_jog_that_finds_its_servo_off_its_way_lets_it_go_at_once_and_switches_motion_off(serve: Any) -> None:
+    # A brown-out shorter than the page's poll: the servo restarted, free, and was turned to 9000; the +100 jog
+    # from 7600 sent 7700, and the reply ("reported 9000") told of it only as the servo was thrown 48 degrees.
+    client, sim = serve((1, 3))
+    servo = sim.servo(1)
+    servo.move_by_hand(7600)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 7600
+    assert post(client, "/api/servo/1/move", {"position": 7650}).status_code == 200  # (on its way: a jog goes on)
+    servo.power_cycle()
+    servo.move_by_hand(9000)
+    thrown = post(client, "/api/servo/1/move", {"position": 7750})
+    assert thrown.status_code == 409, thrown.text
+    error = thrown.json()["error"]
+    assert "9000" in error and "freed" in error and "enable motion" in error, error
+    assert servo.free and abs(servo.position - 9000) < 30, (servo.free, servo.position)  # (let go at once)
+    assert "restarted" in client.get("/api/status").json()["motion_off"]["1"]
+    refused = post(client, "/api/servo/1/move", {"position": 7800})
+    assert refused.status_code == 409 and servo.free, refused.text
+
+
 def test_the_servo_pages_poll_notices_an_ics35_servo_that_stopped_answering_after_its_first_reads(serve: Any) -> None:
     # An ICS 3.5 servo has no position read: once the page's poll knew that, it sent nothing at all, so a servo
     # held with motion on that lost its supply went unnoticed by the open page (a jog then threw it back).

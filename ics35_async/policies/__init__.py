@@ -32,6 +32,7 @@ from .failure_kinds import (
     reopening,
 )
 from .free import FreeReport, free_servos
+from .held_check import HELD_SLACK_DEGREES, off_its_way
 from .id_write import IdChange, IdSurvey, Refusal, look_elsewhere, survey_for_id_write, write_lone_id
 from .no_reply import NoReply, NoReplyCause, why_no_reply
 from .position_read import (
@@ -92,6 +93,8 @@ __all__ = [
     "echo_setting_wrong",
     "edit_image",
     "free_servos",
+    "HELD_SLACK_DEGREES",
+    "off_its_way",
     "look_elsewhere",
     "nothing_came_back",
     "plan_eeprom_write",

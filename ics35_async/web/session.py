@@ -56,6 +56,7 @@ from ..policies import (
     ServoWriteReport,
     WriteOutcome,
     look_elsewhere,
+    off_its_way,
     plan_eeprom_write,
     read_eeprom_agreed,
     read_position_without_freeing,
@@ -198,6 +199,8 @@ class LineSession:
         # (a live plot keeps them held rather than freeing them; one held before a lost port, or before it
         # stopped answering, None, is in doubt).
         self.holding: dict[int, tuple[int, tuple[Bus, int] | None]] = {}
+        # Where each servo stood as a page's last command to it (Hold, a jog) came: its reply (see off_its_way).
+        self._stood: dict[int, int] = {}
         # The holds of the ports worked on before (their servos stay holding): given back, in doubt, when the
         # pages come back to that port (see _switch_to).
         self._holds_elsewhere: dict[str, dict[int, int]] = {}
@@ -1000,6 +1003,7 @@ class LineSession:
                 self.holding.pop(servo_id, None)  # (free now: held again only once the next command is sent)
             held = await servo.set_position(self.check_target(servo_id, here))
             self._holds(servo_id, here)
+            self._stood[servo_id] = held
             return held
 
     async def _position_read_now(self, live: LiveView, servo_id: int) -> int:
@@ -1195,10 +1199,28 @@ class LineSession:
             self.live.stream.set_target(servo_id, target)
             self._holds(servo_id, target)
             return self.live.position(servo_id)
+        before, came_from = self.holding.get(servo_id), self._stood.get(servo_id)
         async with self._quiet() as bus:
-            reply = await bus.servo(servo_id).set_position(target)
+            servo = bus.servo(servo_id)
+            reply = await servo.set_position(target)
             self._holds(servo_id, target)
-            return reply
+            self._stood[servo_id] = reply
+            if before is None or came_from is None or not off_its_way(reply, came_from, before[0]):
+                return reply
+            # Not holding where it was left: it restarted (free) and was turned, or was forced, and this jog throws
+            # it to its target from there.  Let go at once (it was free before the jog), and motion off.
+            why = (
+                f"it answered from {reply}, off its way from {came_from} to {before[0]}: it restarted (free) and "
+                "was turned, or was forced"
+            )
+            self._switch_motion_off([servo_id], why)
+            self.holding.pop(servo_id, None)
+            self._stood.pop(servo_id, None)
+            await servo.free()
+        raise UnsafeOperation(
+            f"servo {servo_id} {why}; the jog would have thrown it to {target}: it was freed at once. Switch on "
+            "'enable motion' again, which holds it where it stands"
+        )
 
     # ------------------------------------------------------------------ renumbering
 
