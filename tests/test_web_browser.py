@@ -325,6 +325,16 @@ def test_jog_moves_the_servo_only_with_motion_enabled(page: Page, lines: Any) ->
     page.click("#free-btn")
     expect(page.locator("#jog-plus")).to_be_disabled()
     expect(page.locator("#message")).to_contain_text("free")
+    # (Target is where the servo was last sent: freed, none; held here, where it stood.  It said "8300" beside a
+    # servo let go, and after Hold here.)
+    expect(page.locator("#jog-target")).to_have_text("-")
+    sim.servo(1).move_by_hand(8000)
+    page.click("#hold-btn")
+    expect(page.locator("#message")).to_contain_text("holding at 8000")
+    expect(page.locator("#jog-target")).to_have_text("8000")
+    assert sim.servo(1).target == 8000
+    page.click("#free-btn")
+    expect(page.locator("#message")).to_contain_text("free")
 
 
 def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page: Page, lines: Any) -> None:

@@ -221,6 +221,22 @@ def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_
         expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
 
 
+def test_a_listed_servos_open_link_stays_under_a_click_as_the_table_refreshes(browser: Browser) -> None:
+    # The table was made anew about once a second: a click whose press and release straddled a refresh did nothing
+    # (2 of 12 clicks held 120-150 ms), its link gone from under it.
+    line = PtyLine((1, 2))
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 2, ids="0-3")
+        row = p.locator("#servo-table tr[data-id='2']")
+        expect(row.locator("td.temp")).to_contain_text("°C")
+        link = row.locator("a").element_handle()
+        line.sim.servo(2).temperature_celsius = 61.0
+        expect(row.locator("td.temp")).to_contain_text("61")  # (refreshed since the link was taken)
+        assert link.evaluate("a => a.isConnected"), "the row's link was made anew"
+        link.click()
+        expect(p.locator("#servo-id")).to_have_value("2")
+
+
 def test_a_listed_servo_that_a_second_one_at_its_id_answers_with_is_not_said_not_to_answer(browser: Browser) -> None:
     # A second new servo (ID 0, as they come) plugged in beside the first: its row said "not answering", which
     # sends a person to its power and cable, when two servos answer at once.

@@ -226,7 +226,10 @@ function showServos(servos) {
   }
   $("#servo-notes").hidden = !servos.length;
   const body = $("#servo-table tbody");
-  body.replaceChildren();
+  // Each servo's row kept from one refresh to the next (about once a second), its cells written anew: a row made
+  // anew each time took its "open" link away under a click whose press and release straddled a refresh.
+  const before = new Map([...body.children].map((tr) => [tr.dataset.key, tr]));
+  const rows = [];
   for (const s of servos) {
     // A servo that stopped answering: said in words (the library's, with the bytes sent, on hover; its
     // Servo page tells why), and no value from before shown as if read now.
@@ -240,11 +243,23 @@ function showServos(servos) {
     const current = silent || elsewhere ? "-" : s.current === undefined ? "…" : String(s.current);
     const ics = elsewhere ? "-" : s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
     const position = silent || elsewhere ? "-" : s.protocol === undefined ? "…" : s.position ?? "not read";
-    body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
-      el("td", { class: "ics" }, ics), el("td", { class: "position", title: s.position_note || "" }, position),
-      el("td", { class: "temp", title: s.telemetry_error || "" }, temp), el("td", { class: "current" }, current),
-      el("td", {}, el("a", { href: `#servo/${s.id}` }, "open"))));
+    const texts = [s.id, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : ""), ics, position, temp, current];
+    const titles = [null, null, null, s.position_note || "", s.telemetry_error || "", null];
+    const key = `${s.id}@${s.baud}`;
+    let row = before.get(key);
+    if (!row) {
+      row = el("tr", { "data-id": s.id, "data-key": key }, el("td", {}), el("td", {}), el("td", { class: "ics" }),
+        el("td", { class: "position" }), el("td", { class: "temp" }), el("td", { class: "current" }),
+        el("td", {}, el("a", { href: `#servo/${s.id}` }, "open")));
+    }
+    texts.forEach((text, k) => {
+      const cell = row.children[k];
+      if (cell.textContent !== String(text)) cell.textContent = String(text);
+      if (titles[k] !== null) cell.title = titles[k];
+    });
+    rows.push(row);
   }
+  if (rows.length !== body.children.length || rows.some((row, k) => body.children[k] !== row)) body.replaceChildren(...rows);
 }
 
 // Baud rates in words: "625,000 or 1,250,000".
@@ -716,6 +731,10 @@ async function jog(position) {
 async function torque(what) {
   const reply = await api(`/api/servo/${servoId()}/${what}`, {});
   $("#jog-position").textContent = reply.position ?? "-";
+  // Target: where the servo was last sent; freed, none ("target 11400" stood beside a servo let go at 8988); held
+  // here, where it stood (a servo the live stream carries answers null: its page reads it from the stream).
+  if (what === "free") targetSent(null);
+  else if (reply.position !== null && reply.position !== undefined) targetSent(reply.position);
   if (what === "free") { $("#motion-switch").checked = false; setMotion(false); }
   const where = reply.position === null
     ? ": not answering now (the live stream frees it once it answers)" : ` at ${reply.position}`;
