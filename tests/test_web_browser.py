@@ -374,6 +374,14 @@ def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any
     expect(page.locator("#many-results tbody tr")).to_have_count(2)
     expect(page.locator("#many-results tr[data-id='3']")).to_contain_text("verified")
     assert sim.servo(1).eeprom.punch == 4 and sim.servo(3).eeprom.punch == 4
+    # A refused Apply leaves no earlier Apply's outcome under it, as if it had been this one's.
+    page.uncheck("[name=use-punch]")
+    page.click("#many-apply")
+    expect(page.locator("#message")).to_have_text("tick at least one field to apply")
+    expect(page.locator("#many-results tbody tr")).to_have_count(0)
+    page.check("[name=use-punch]")
+    page.click("#many-apply")
+    expect(page.locator("#many-results tbody tr")).to_have_count(2)
     shot(page, "many")
 
 

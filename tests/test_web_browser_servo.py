@@ -776,6 +776,12 @@ def test_the_ram_box_shows_what_the_servo_has_for_the_parameter_chosen(browser: 
         expect(p.locator("#ram-result")).to_contain_text("speed = 60")
         expect(p.locator("#ram-value")).to_have_value("60")
         assert servo.speed == 60 and servo.stretch == 30
+        # A refused write leaves no earlier success beside it ("speed = 60 in RAM" stood beside the refusal).
+        p.fill("#ram-value", "500")
+        p.click("#ram-write")
+        expect(p.locator("#message")).to_contain_text("speed")
+        expect(p.locator("#ram-result")).to_have_text("")
+        assert servo.speed == 60
 
 
 @pytest.mark.parametrize("typed", ["", "7.5"], ids=["emptied", "a fraction"])
@@ -795,7 +801,7 @@ def test_a_number_box_emptied_or_given_a_fraction_is_refused_in_the_pages_words(
         expect(p.locator("#diff tr.changed")).to_have_count(0)
         p.fill("#ram-value", typed)
         p.click("#ram-write")
-        expect(p.locator("#message")).to_have_text(refused("the RAM value"))
+        expect(p.locator("#message")).to_have_text(refused("stretch"))  # (it said "give the RAM value a value")
         p.fill("#servo-id", typed)
         p.click("#servo-load")
         expect(p.locator("#message")).to_have_text(refused("the servo's ID"))  # not "ID 0 did not answer"

@@ -639,7 +639,9 @@ async function restoreServo() {
 
 async function writeRam() {
   const param = $("#ram-param").value;
-  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: wholeIn($("#ram-value"), "the RAM value") });
+  $("#ram-result").textContent = "";  // (an earlier write's success stood beside this one's refusal)
+  const named = $("#ram-param").selectedOptions[0].textContent.replace(/ \(.*$/, "");  // ("current limit")
+  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: wholeIn($("#ram-value"), named) });
   $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
   showRam(await api(`/api/servo/${servoId()}/ram`));
 }
@@ -777,6 +779,8 @@ function fillManyFields() {
 }
 
 async function applyMany() {
+  // An earlier Apply's outcome goes first: it stood under this one's refusal as if this one had failed so.
+  $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren();
   let ids;
   try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
   const changes = {};
@@ -787,7 +791,6 @@ async function applyMany() {
     changes[name] = +text;
   }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
-  $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren();
   const reply = await api("/api/many/apply", { ids, changes });
   // The same words for several servos (a lost port, a line of absent IDs) said once, naming them all.
   const failed = new Map();
