@@ -939,6 +939,17 @@ def test_an_edit_typed_on_a_servos_page_and_not_written_is_still_there_back_on_i
         p.click("#servo-load")
         servo_read(p, 2)
         expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
+        # So does coming back once more through the Servo link: the page came back empty, nothing read, the edit
+        # back only at Read.
+        p.click("nav a[href='#line']")
+        unplugged = line.sim.remove_servo(2)
+        p.click("nav a[href='#servo']")
+        expect(p.locator("#message")).to_contain_text("ID 2")
+        line.sim.add_device(unplugged)
+        p.click("nav a[href='#line']")
+        p.click("nav a[href='#servo']")
+        servo_read(p, 2)
+        expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
 
 
 def test_an_edit_typed_after_show_changes_is_not_written_unshown(browser: Browser) -> None:

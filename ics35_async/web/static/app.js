@@ -110,6 +110,7 @@ function show() {
   if (page !== "servo") leaveServo().catch(() => {});
   // (A failed read is said by api(): not again as an uncaught error in the console.)
   if (page === "servo" && shownStill(arg)) backToServo();
+  else if (page === "servo" && arg === undefined && typedStill()) backToTyped();
   else if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
   if (page === "many") fillManyFields();
   socketSend();
@@ -367,6 +368,21 @@ function shownStill(arg) {
   return arg === undefined || arg === String(shown.id);
 }
 
+// What was typed for a servo whose read failed (the page shows no servo then), on the line open now.
+function typedStill() {
+  const typed = state.typedFor, s = state.status;
+  return !!typed && !!s && typed.port === s.port && typed.baud === s.baud;
+}
+
+// Back on the Servo page after its read failed: that servo read again, what was typed kept (see loadServo); the
+// page came back empty, nothing read, the typed values back only at Read.
+function backToTyped() {
+  const id = state.typedFor.id;
+  $("#servo-id").value = id;
+  history.replaceState(null, "", `#servo/${id}`);
+  loadServo().catch(() => {});
+}
+
 // Back on the page of the servo it shows: that servo read again (another page may have written to it meanwhile),
 // with what was typed in its boxes and not written kept (read again, they were lost); a Show changes diffs them
 // against the servo as it is now.
@@ -395,7 +411,8 @@ async function loadServo(typed = {}) {
   const id = wholeIn($("#servo-id"), "the servo's ID");
   // (its tables are another read's from here on; a read that fails keeps what was typed for the next of this servo)
   const kept = state.typedFor && state.typedFor.id === id && !Object.keys(typed).length ? state.typedFor.typed : typed;
-  state.shown = null; state.typedFor = Object.keys(kept).length ? { id, typed: kept } : null;
+  const line = { port: state.status && state.status.port, baud: state.status && state.status.baud };
+  state.shown = null; state.typedFor = Object.keys(kept).length ? { id, typed: kept, ...line } : null;
   // Each load has its number: one overtaken by a later load (Read pressed again, another servo's page) stops at
   // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
   const mine = (state.loads = (state.loads ?? 0) + 1);
