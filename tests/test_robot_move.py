@@ -486,12 +486,13 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     assert during and during[-1] - during[0] > 5.0, during  # it went on while the lower line was away (not 0)
     # 50 degrees a second: each new target at most that far on from the one before, by the time since that one
     # first went out (a busy machine's stall lets the motion's clock run on as much, the stream sending the
-    # last target meanwhile), and a slack of 0.2 s: a stall between a target worked out and its command on the
+    # last target meanwhile), and a slack of 0.3 s: a stall between a target worked out and its command on the
     # wire is not in the wire's times (a loaded machine's 0.1 s made a command 5 degrees on from one 14 ms
-    # before).  Never half a second's worth at once, as when it drove on after the lost line came back.
+    # before; `make test`'s own load once 0.24 s, 11.8 degrees in 10 ms).  Never half a second's worth at once,
+    # as when it drove on after the lost line came back.
     changes = [(t, deg) for k, (_, t, deg) in enumerate(neck) if k == 0 or deg != neck[k - 1][2]]
     for (t1, d1), (t2, d2) in itertools.pairwise(changes):
-        assert d2 - d1 <= 50.0 * (t2 - t1 + 0.2) + 1.0, (d1, d2, t2 - t1)
+        assert d2 - d1 <= 50.0 * (t2 - t1 + 0.3) + 1.0, (d1, d2, t2 - t1)
     assert neck[-1][2] == pytest.approx(50.0, abs=HALF_COUNT)
 
 

@@ -751,7 +751,7 @@ async function torque(what) {
   const reply = await api(`/api/servo/${servoId()}/${what}`, {});
   $("#jog-position").textContent = reply.position ?? "-";
   // Target: where the servo was last sent; freed, none ("target 11400" stood beside a servo let go at 8988); held
-  // here, where it stood (a servo the live stream carries answers null: its page reads it from the stream).
+  // here, where it stood (null: it did not answer now, and no target is known).
   if (what === "free") targetSent(null);
   else if (reply.position !== null && reply.position !== undefined) targetSent(reply.position);
   if (what === "free") { $("#motion-switch").checked = false; setMotion(false); }
