@@ -735,6 +735,13 @@ def test_a_logged_monitor_keeps_its_end_tables_title_whole(cli: Any) -> None:
     assert title in [line.strip() for line in lines[table - 3 : table]], result.out
 
 
+def status_drawn(text: str, columns: int) -> list[str]:
+    """The lines a live view's status line ``text`` is drawn as on a terminal ``columns`` wide."""
+    console = Console(width=columns, file=io.StringIO(), color_system=None)
+    console.print(StatusLine(text))
+    return [line.rstrip() for line in console.file.getvalue().splitlines()]  # type: ignore[attr-defined]
+
+
 @pytest.mark.parametrize("columns", [40, *range(50, 111, 3)])
 def test_a_status_line_breaks_between_its_fields_not_inside_one(columns: int) -> None:
     # At 82 columns monitor's status with its port lost read "... waiting for it to come back  errors" / "0   Ctrl-C
@@ -744,9 +751,7 @@ def test_a_status_line_breaks_between_its_fields_not_inside_one(columns: int) ->
     fields = ["t=  3.0/10 s", "cycle 412", "port lost for 2.5 s: waiting for it to come back", "errors 0"]
     text = state.summary(telemetry) + "   Ctrl-C to stop"
     assert text == "  ".join(fields) + "   Ctrl-C to stop", text
-    console = Console(width=columns, file=io.StringIO(), color_system=None)
-    console.print(StatusLine(text))
-    lines = [line.rstrip() for line in console.file.getvalue().splitlines()]  # type: ignore[attr-defined]
+    lines = status_drawn(text, columns)
     assert " ".join(" ".join(lines).split()) == " ".join(text.split()), lines  # (the same words, none cut)
     assert all(len(line) <= columns for line in lines), lines
     for field in [*fields, "Ctrl-C to stop"]:
@@ -769,9 +774,7 @@ def test_a_status_line_tells_its_fields_from_a_number_padded_to_its_width(fields
     # teach's "... (the first pose is at 1 s)  12" / "pose(s) captured" at 40 columns: a count cut from its words.
     text = "  ".join(fields)
     for columns in range(20, len(text) + 2):
-        console = Console(width=columns, file=io.StringIO(), color_system=None)
-        console.print(StatusLine(text))
-        lines = [line.rstrip() for line in console.file.getvalue().splitlines()]  # type: ignore[attr-defined]
+        lines = status_drawn(text, columns)
         for field in fields:
             if len(field) <= columns:
                 assert any(field in line for line in lines), (columns, field, lines)

@@ -930,22 +930,22 @@ def test_an_edit_typed_on_a_servos_page_and_not_written_is_still_there_back_on_i
         servo_read(p, 2)
         expect(p.locator("#eeprom-table [name=dead_band]")).to_have_value("4")
         expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
+
+        def back_while_unplugged() -> None:  # through the Servo link, servo 2's cable out: the read fails
+            p.click("nav a[href='#line']")
+            unplugged = line.sim.remove_servo(2)
+            p.click("nav a[href='#servo']")
+            expect(p.locator("#message")).to_contain_text("ID 2")
+            line.sim.add_device(unplugged)
+
         # Back while its cable is out: the read fails, and the next one (Read, once it is back) keeps the edit.
-        p.click("nav a[href='#line']")
-        unplugged = line.sim.remove_servo(2)
-        p.click("nav a[href='#servo']")
-        expect(p.locator("#message")).to_contain_text("ID 2")
-        line.sim.add_device(unplugged)
+        back_while_unplugged()
         p.click("#servo-load")
         servo_read(p, 2)
         expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
         # So does coming back once more through the Servo link: the page came back empty, nothing read, the edit
         # back only at Read.
-        p.click("nav a[href='#line']")
-        unplugged = line.sim.remove_servo(2)
-        p.click("nav a[href='#servo']")
-        expect(p.locator("#message")).to_contain_text("ID 2")
-        line.sim.add_device(unplugged)
+        back_while_unplugged()
         p.click("nav a[href='#line']")
         p.click("nav a[href='#servo']")
         servo_read(p, 2)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import click
@@ -249,15 +249,14 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
     if as_json:
         emit_json(
             {
-                "freed": {str(i): p for i, p in report.freed.items()},
+                "freed": _freed_json(report.freed),
                 "failed": {str(i): str(e) for i, e in report.failed.items()},
                 **({"absent": list(report.absent)} if every_servo else {}),
                 **({"unknown": [str(i) for i in report.unknown]} if report.unknown else {}),
             }
         )
     else:
-        for i, p in report.freed.items():
-            say(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})", to=out)
+        _say_freed(report.freed)
         for i, e in report.failed.items():
             # Only silence is "no answer": a garbled reply means something at that ID did answer (two servos
             # sharing it, most often), which the supply and wiring hints below would not mend.
@@ -299,10 +298,9 @@ def _interrupted_freeing(
     left = [i for i in wanted if i not in freed]
     freed = dict(sorted(freed.items()))
     if as_json:
-        emit_json({"freed": {str(i): p for i, p in freed.items()}, "not_freed": left, "interrupted": True})
+        emit_json({"freed": _freed_json(freed), "not_freed": left, "interrupted": True})
     else:
-        for i, p in freed.items():
-            say(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})", to=out)
+        _say_freed(freed)
     went = f"servo(s) {id_ranges(freed)} went free" if freed else "no servo had answered that it went free"
     if not left:
         return CliError(ExitCode.INTERRUPTED, f"interrupted: {went}, every one asked for")
@@ -316,6 +314,17 @@ def _interrupted_freeing(
     again = "all" if every_servo else ids_argument(left)
     error.hints.append(f"free them with: {settings.command_line('free', again)}")
     return error
+
+
+def _freed_json(freed: Mapping[int, int]) -> dict[str, int]:
+    """``free --json``'s ``freed``: ID (as a JSON key) -> the position each reported as it went free."""
+    return {str(i): p for i, p in freed.items()}
+
+
+def _say_freed(freed: Mapping[int, int]) -> None:
+    """A line on stdout for each servo that went free, where it reported it stood."""
+    for i, p in freed.items():
+        say(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})", to=out)
 
 
 def _garbled(exc: Exception) -> bool:

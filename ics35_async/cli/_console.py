@@ -78,20 +78,15 @@ class StatusLine:
         before a word ("cycle 412  errors 0") or before a count that does not follow a label ("... at 1 s)  12
         pose(s) captured"); not those that pad a number to its width after one ("t=  3.0 s", "rate  35.8 Hz",
         "(avg  35.7)")."""
-        text, start = self.text, 0
-        found: list[re.Match[str]] = []
+        text, gap_before, start = self.text, "", 0
+        fields: list[tuple[str, str]] = []
         for gap in re.finditer(r" {2,}", text):
             after, before = text[gap.end() : gap.end() + 1], text[gap.start() - 1 : gap.start()]
             if after.isalpha() or (after.isdigit() and not (before.isalpha() or before in "=(")):
-                found.append(gap)
-        parts: list[str] = []
-        gaps = [""]
-        for gap in found:
-            parts.append(text[start : gap.start()])
-            gaps.append(gap.group())
-            start = gap.end()
-        parts.append(text[start:])
-        return list(zip(gaps, parts, strict=True))
+                fields.append((gap_before, text[start : gap.start()]))
+                gap_before, start = gap.group(), gap.end()
+        fields.append((gap_before, text[start:]))
+        return fields
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         width = options.max_width

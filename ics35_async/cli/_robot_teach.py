@@ -475,6 +475,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                         low[name] = min(servo, low.get(name, servo))
                         high[name] = max(servo, high.get(name, servo))
 
+            def offline_in(frame: RobotFrame) -> set[str]:
+                # (A joint with no neutral, silent at step 1, is not calibrated whatever it does at step 2.)
+                return {name for name in frame.offline if name in neutral}
+
             async def track_every_frame() -> None:
                 # Every frame, not the screen's ticks: a joint may touch its end only for a moment.  The robot's
                 # own frames, not a stream's: a stream ends at a safety stop (one servo's plug working loose),
@@ -483,8 +487,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                 while True:
                     frame = await robot.wait_frame(cycle)
                     cycle = frame.cycle
-                    # (A joint with no neutral, silent at step 1, is not calibrated whatever it does now.)
-                    offline = {name for name in frame.offline if name in neutral}
+                    offline = offline_in(frame)
                     # Said at once: the person can sweep again what a joint missed while it was silent (told only
                     # at Enter, the range they had swept was lost).
                     for name in sorted(offline - away):
@@ -548,7 +551,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     track(robot.latest)
                     if robot.latest is not None:
                         away.clear()
-                        away.update(name for name in robot.latest.offline if name in neutral)
+                        away.update(offline_in(robot.latest))
                 finally:
                     watcher.cancel()
                     with contextlib.suppress(asyncio.CancelledError, IcsError):
