@@ -729,6 +729,26 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
 
 
+def test_reconnect_pressed_before_the_line_is_back_is_told_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
+    # Pressed too early, Reconnect's "line arm is still lost" stayed on after the port was back; the banner over
+    # every page said the port reconnects "as soon as it returns", where the robot waits for Reconnect.
+    with arm_robot_page(browser, tmp_path) as (line, p):
+        expect(p.locator("#robot-cycle")).not_to_have_text("-")
+        line.sim.unplug()
+        expect(p.locator("#robot-reopen")).to_be_visible()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        expect(p.locator("#lost-banner")).to_contain_text("then press Reconnect on the Robot page")
+        p.click("#robot-reopen")
+        expect(p.locator("#message")).to_contain_text("line arm is still lost")
+        line.sim.replug()
+        expect(p.locator("#message")).to_have_text("line arm is back: press Reconnect")
+        expect(p.locator("#robot-error")).to_contain_text("line arm is back: press Reconnect")
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        p.click("#robot-reopen")
+        expect(p.locator("#robot-error")).to_have_text("")
+        expect(p.locator("#robot-cycle")).not_to_have_text("-")
+
+
 def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints_it_could_not_reach(
     browser: Browser, tmp_path: Path
 ) -> None:

@@ -123,9 +123,10 @@ class RobotSession:
             if self._stopped_robot is not stopped:  # (the server closing meanwhile: the robot is gone)
                 raise UnsafeOperation("the robot was closed while Reconnect waited for its line")
             if still:
+                named = self._in_order(still)
                 raise UnsafeOperation(
-                    f"line {', '.join(self._in_order(still))} is still lost (its port is not back): plug it back "
-                    "in, then press Reconnect; meanwhile Free all reaches the joints on the other lines"
+                    f"{_lines_named(named)} {'is' if len(named) == 1 else 'are'} still lost (the port is not back):"
+                    " plug it back in, then press Reconnect; meanwhile Free all reaches the joints on the other lines"
                 )
             self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
         if self.lost_pose and lost_joints not in ("hold", "free"):
@@ -204,8 +205,7 @@ class RobotSession:
         # Kept from here, not read again once the stop is over: a line back by then (within the ramp) is still the
         # one Reconnect asks about (its servos may have restarted while it was away).
         lines = self.lost_lines = self._in_order(lost)
-        ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
-        self.error = f"the robot stopped: line {ports} lost its port; with the line back, press Reconnect"
+        self.error = f"{self._stopped_by(lines)}; with the line back, press Reconnect"
         # Reconnect's question goes with its offer: taken now (the lost line's joints keep their targets through
         # the stop), and again once the other lines have slowed to rest (their targets, where they came to rest).
         self._carry_on_from(robot)
@@ -276,6 +276,18 @@ class RobotSession:
     def playing(self) -> str | None:
         """The names of the motion or the moves playing (``None``: nothing plays)."""
         return ", ".join(dict.fromkeys(self._jobs.values())) or None  # (a move taken over runs out its time)
+
+    def _stopped_by(self, lines: list[str]) -> str:
+        ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
+        return f"the robot stopped: line {ports} lost its port"
+
+    def _reconnect_ready(self) -> str | None:
+        """Words for the robot a lost line stopped once every line it lost is back (they reopen by themselves):
+        Reconnect goes now, where the stop's error and an early Reconnect's refusal said to wait for them."""
+        stopped = self._stopped_robot
+        if stopped is None or not self.lost_lines or stopped.lost_lines:
+            return None
+        return f"{_lines_named(self.lost_lines)} {'is' if len(self.lost_lines) == 1 else 'are'} back: press Reconnect"
 
     def _in_order(self, lines: Collection[str]) -> list[str]:
         """``lines`` in the order the robot file gives them."""
@@ -351,10 +363,12 @@ class RobotSession:
                     "held": held.get(name),
                 }
             )
+        ready = self._reconnect_ready()
         return {
             "name": self.description.name or self.path,
             "open": robot is not None,
-            "error": self.error,
+            "error": self.error if ready is None else f"{self._stopped_by(self.lost_lines)}; {ready}",
+            "reconnect_ready": ready,  # (the page says it in place of an early Reconnect's refusal)
             "warnings": self.warnings if robot is not None else [],
             "cycle": None if frame is None else frame.cycle,
             "motion_enabled": self.motion_enabled,
@@ -561,6 +575,11 @@ class RobotSession:
             f"{'its servo' if one else 'their servos'} may still hold; once the line is back, Reconnect frees "
             f"{'it' if one else 'them'}"
         )
+
+
+def _lines_named(lines: list[str]) -> str:
+    """Lines named in words: ``line arm``, ``lines legs, arms``."""
+    return f"{'line' if len(lines) == 1 else 'lines'} {', '.join(lines)}"
 
 
 def _check_ready(robot: Robot, joints: Iterable[str]) -> None:

@@ -11,6 +11,7 @@ const state = { status: null, servos: [], eeprom: null, plan: null, restore: nul
 function say(text, kind = "error", action = null) {
   state.sayingLost = false;  // set by api() when this is the words of a lost port
   state.backThen = null;  // what to do once the line is back, when not "try again" (set after api() said the loss)
+  state.sayingStillLost = false;  // set when this is an early Reconnect's refusal (see reopenRobot)
   const box = $("#message");
   box.textContent = text;
   if (action) box.append(" ", el("button", { type: "button", onclick: () => { say(""); Promise.resolve(action.run()).catch(() => {}); } }, action.label));
@@ -121,6 +122,10 @@ function showStatus(s) {
   $("#sim-banner").hidden = !s.simulator;
   showSimHint(s.simulator ? s.robot_line : null);
   $("#lost-banner").hidden = !s.lost;
+  // A robot's line comes back by itself, but the robot it stopped waits for the person's Reconnect.
+  $("#lost-banner").textContent = s.robot_line
+    ? `The robot's line ${s.robot_line} lost its port: it reconnects as soon as the port returns, then press Reconnect on the Robot page`
+    : "The port is lost: reconnecting as soon as it returns";
   showRobotLines(s.robot);
   $("#scan-progress").hidden = !s.scanning;
   $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
@@ -991,6 +996,7 @@ function onRobot(r) {
   state.robot = r;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
+  if (state.sayingStillLost && r.reconnect_ready) say(r.reconnect_ready, "info");
   $("#robot-warnings").replaceChildren(...r.warnings.map((text) => el("li", {}, `warning: ${text}`)));
   // The lines lost (or never opened): open them again from here; when the lost line's joints were holding,
   // the person says what they do (the server cannot tell whether their servos kept their power).
@@ -1255,9 +1261,19 @@ on("#robot-motion-file", "change", () => { $("#robot-play").disabled = !(state.r
 on("#robot-play", "click", playMotion);
 on("#robot-stop", "click", async () => onRobot(await api("/api/robot/stop", {})));
 on("#robot-free", "click", async () => onRobot(await api("/api/robot/free", {})));
-on("#robot-reopen", "click", async () => onRobot(await api("/api/robot/reopen", {})));
-on("#robot-reopen-hold", "click", async () => onRobot(await api("/api/robot/reopen", { lost_joints: "hold" })));
-on("#robot-reopen-free", "click", async () => onRobot(await api("/api/robot/reopen", { lost_joints: "free" })));
+// Pressed before the lost line is back, Reconnect is refused (409): its words give way to "back" once it is.
+async function reopenRobot(data) {
+  try {
+    onRobot(await api("/api/robot/reopen", data));
+  } catch (e) {
+    if (e.status === 409) state.sayingStillLost = true;
+    throw e;
+  }
+}
+
+on("#robot-reopen", "click", () => reopenRobot({}));
+on("#robot-reopen-hold", "click", () => reopenRobot({ lost_joints: "hold" }));
+on("#robot-reopen-free", "click", () => reopenRobot({ lost_joints: "free" }));
 window.addEventListener("hashchange", show);
 
 api("/api/status").then(showStatus).catch(() => {});
