@@ -80,7 +80,12 @@ def test_requests_without_the_token_are_refused_with_401_and_a_wrong_one_with_40
     bare = TestClient(client.app, base_url=BASE)
     assert bare.get("/api/status").status_code == 401
     assert bare.get("/").status_code == 401
-    assert client_with(TestClient(client.app, base_url=BASE), "x" * 30).get("/api/status").status_code == 403
+    stale = client_with(TestClient(client.app, base_url=BASE), "x" * 30).get("/api/status")
+    assert stale.status_code == 403
+    # (as the API's other errors: the page tells a token gone stale over a restart by its kind)
+    assert stale.json() == {"error": "wrong token: open the URL `ics35 web` printed", "kind": "WrongToken"}
+    assert bare.get("/api/status").json()["kind"] == "NoToken"
+    assert bare.get("/").text.startswith("401: no token")
     assert bare.get("/api/status?token=wrong-token-wrong-token").status_code == 403
     assert post(bare, "/api/scan").status_code == 401
 

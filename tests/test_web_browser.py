@@ -217,6 +217,10 @@ def test_a_page_of_a_server_started_again_with_a_new_token_says_to_open_the_new_
         # Not "server gone" while it runs: the page cannot use it, and says what to open instead.
         expect(p.locator("#message")).to_contain_text("another token")
         expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
+        # A button pressed there said the server's bare refusal ("403: wrong token: open the URL ..."), where the
+        # page knows why: the same words again.
+        p.click("#scan-btn")
+        expect(p.locator("#message")).to_have_text(re.compile(r"^the configurator's server runs with another token"))
     finally:
         context.close()
         stop_servers(first, second)

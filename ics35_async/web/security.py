@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import hmac
+import json
 import os
 import secrets
 from collections.abc import Awaitable, Callable, MutableMapping
@@ -107,10 +108,12 @@ class TokenGuard:
         from_cookie = cookie[COOKIE].value if COOKIE in cookie else None
         given = from_query if from_query is not None else from_cookie
         if given is None:
-            await self._refuse(scope, send, 401, "no token: open the URL `ics35 web` printed (it carries the token)")
+            await self._refuse(
+                scope, send, 401, "no token: open the URL `ics35 web` printed (it carries the token)", "NoToken"
+            )
             return
         if not self._matches(given):
-            await self._refuse(scope, send, 403, "wrong token: open the URL `ics35 web` printed")
+            await self._refuse(scope, send, 403, "wrong token: open the URL `ics35 web` printed", "WrongToken")
             return
         origin = headers.get("origin")
         own = f"{'https' if scope.get('scheme') in ('https', 'wss') else 'http'}://{host}"
@@ -144,18 +147,21 @@ class TokenGuard:
         )  # fmt: skip
         await send({"type": "http.response.body", "body": b""})
 
-    async def _refuse(self, scope: Scope, send: Send, status: int, reason: str) -> None:
+    async def _refuse(self, scope: Scope, send: Send, status: int, reason: str, kind: str = "Refused") -> None:
         if scope["type"] == "websocket":
             # Closing before accepting makes the server answer the handshake with 403.
             await send({"type": "websocket.close", "code": 1008, "reason": reason[:120]})
             return
-        body = f"{status}: {reason}\n".encode()
+        if scope.get("path", "").startswith("/api/"):
+            # As the API's other errors are (its kind: a page left open over a restart tells a stale token by it).
+            body, content_type = json.dumps({"error": reason, "kind": kind}).encode(), b"application/json"
+        else:
+            body, content_type = f"{status}: {reason}\n".encode(), b"text/plain; charset=utf-8"
         await send(
             {
                 "type": "http.response.start",
                 "status": status,
-                "headers": [(b"content-type", b"text/plain; charset=utf-8"),
-                            (b"content-length", str(len(body)).encode())],
+                "headers": [(b"content-type", content_type), (b"content-length", str(len(body)).encode())],
             }
-        )  # fmt: skip
+        )
         await send({"type": "http.response.body", "body": body})

@@ -31,6 +31,11 @@ function reopenAt(baud) {
   } };
 }
 
+// A server refusing the token this page was opened with was started again (each start makes a new token unless
+// one is given): what the page says, whether its socket or a button's request finds it first.
+const TOKEN_REFUSED = "the configurator's server runs with another token now (it was started again): "
+  + "open the address `ics35 web` printed, which carries it";
+
 async function api(path, data) {
   const options = data === undefined ? {} : { method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify(data) };
   let response;
@@ -44,6 +49,7 @@ async function api(path, data) {
   const text = await response.text();
   let body = null;
   try { body = JSON.parse(text); } catch (e) { body = { error: text.trim() }; }
+  if (!response.ok && body && body.kind === "WrongToken") body.error = TOKEN_REFUSED;  // (the page's own cookie: see below)
   if (!response.ok) {
     say(body && body.error ? body.error : `error ${response.status}`, "error", body && body.answers_at ? reopenAt(body.answers_at) : null);
     // The port's words (503) while it is gone: showStatus replaces them when the line is back.
@@ -1168,9 +1174,7 @@ function connectSocket() {
     try { refused = [401, 403].includes((await fetch("/api/status")).status); } catch (e) { /* gone */ }
     if (refused) {
       $("#line-status").textContent = "server started again: open its new address";
-      const words = "the configurator's server runs with another token now (it was started again): "
-        + "open the address `ics35 web` printed, which carries it";
-      if (!state.tokenRefused) say(words);
+      if (!state.tokenRefused) say(TOKEN_REFUSED);
       // (as gone: this page cannot read or send anything; a restart quicker than the page never showed it gone)
       serverGoneHere("the configurator's server was started again with another token (open its new address)");
       state.tokenRefused = true;
