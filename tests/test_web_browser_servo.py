@@ -320,6 +320,22 @@ def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) 
         p.unroute("**/api/servo/1/move")
 
 
+def test_a_jog_that_found_its_servo_off_its_way_shows_it_freed_not_at_its_last_target(browser: Browser) -> None:
+    # The server freed the servo (it had restarted and been turned: the jog's reply came from 9000) and said so,
+    # but the page went on showing Target 8000 beside motion off until the next read.
+    with held_by_its_page(browser, 8000) as (_, servo, p):
+        until(lambda: servo.target == 8000, "enable motion never held servo 1")
+        servo.power_cycle()  # (quicker than the page's poll)
+        servo.move_by_hand(9000)
+        p.click("#jog-plus")
+        expect(p.locator("#message")).to_contain_text("it was freed at once")
+        expect(p.locator("#jog-target")).to_have_text("-")
+        expect(p.locator("#jog-position")).to_have_text(re.compile(r"^(89|90)\d\d$"))
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_disabled()
+        assert servo.free
+
+
 def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Browser) -> None:
     # A servo that did not answer the jog (504) may have heard it: its target is the new one or the old.
     with held_by_its_page(browser, 8000) as (line, _, p):

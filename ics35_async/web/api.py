@@ -45,7 +45,7 @@ from ..units import plain_count
 from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
-from .session import PAGE_NAME_MAX, LineSession
+from .session import PAGE_NAME_MAX, JogFreedServo, LineSession
 
 log = logging.getLogger("ics35_async.web")
 
@@ -276,7 +276,10 @@ async def position(request: Request, session: LineSession) -> Any:
 
 
 async def move(request: Request, session: LineSession) -> Any:
-    return {"position": await session.move(servo_id(request), int_of(await body(request), "position"))}
+    try:
+        return {"position": await session.move(servo_id(request), int_of(await body(request), "position"))}
+    except JogFreedServo as exc:  # (the page shows the servo free where it stands, not at its last target)
+        return error_response(exc, freed=True, position=exc.position)
 
 
 # --------------------------------------------------------------------------- ID, many, live, traffic

@@ -127,6 +127,15 @@ HOLD_READ_WAIT = 2.0
 _ASKED_ON: contextvars.ContextVar[tuple[Bus, int] | None] = contextvars.ContextVar("asked_on", default=None)
 
 
+class JogFreedServo(UnsafeOperation):
+    """A jog refused after it went out: its reply showed the servo off its way (see ``off_its_way``), so the
+    servo was freed; ``position`` is where the free's reply says it stands (the page shows it free there)."""
+
+    def __init__(self, message: str, position: int) -> None:
+        super().__init__(message)
+        self.position = position
+
+
 @dataclass
 class ScanProgress:
     done: int = 0
@@ -1216,10 +1225,11 @@ class LineSession:
             self._switch_motion_off([servo_id], why)
             self.holding.pop(servo_id, None)
             self._stood.pop(servo_id, None)
-            await servo.free()
-        raise UnsafeOperation(
+            freed_at = await servo.free()
+        raise JogFreedServo(
             f"servo {servo_id} {why}; the jog would have thrown it to {target}: it was freed at once. Switch on "
-            "'enable motion' again, which holds it where it stands"
+            "'enable motion' again, which holds it where it stands",
+            freed_at,
         )
 
     # ------------------------------------------------------------------ renumbering

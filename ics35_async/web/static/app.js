@@ -56,7 +56,7 @@ async function api(path, data) {
     state.sayingLost = response.status === 503 && (body.kind === "PortLost" || !!(state.status && state.status.lost));
     // The status goes with the error: 400 and 409 were refused before anything was sent; a 502 or 504 may
     // have reached the servo, its answer lost (a caller that showed the request's effect early tells them apart).
-    throw Object.assign(new Error(body.error), { status: response.status });
+    throw Object.assign(new Error(body.error), { status: response.status, reply: body });
   }
   return body;
 }
@@ -742,7 +742,11 @@ async function jog(position) {
     reply = await api(`/api/servo/${servoId()}/move`, { position });
   } catch (e) {
     const latest = mine === state.jogs;  // (a later jog shows its own target meanwhile)
-    if (e.status === 400 || e.status === 409) {  // refused, nothing sent: the last target sent stands
+    if (e.reply && e.reply.freed) {  // sent, but its reply showed the servo off its way: the server freed it
+      targetSent(null);
+      $("#jog-position").textContent = e.reply.position;
+      $("#motion-switch").checked = false; setMotion(false);
+    } else if (e.status === 400 || e.status === 409) {  // refused, nothing sent: the last target sent stands
       const sent = state.jogSent ?? { position: null, uncertain: false };
       if (latest) showTarget(sent.position, sent.uncertain);
     } else {  // 502, 504, a lost port or server: it may have gone out
