@@ -16,6 +16,7 @@ import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
+from tests.support.pty_line import PtyLine
 from tests.support.robot_rig import ics36_humanoid
 from tests.support.terminal import TerminalOutput, screen_of, typed_on_a_terminal
 from tests.support.timing import NO_TIMEOUTS_OPTION, scaled
@@ -88,7 +89,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     assert keyframes[0]["pose"] == pytest.approx({"a": 20.0, "b": 40.0, "c": 60.0}, abs=0.1)
     for sid in (1, 2, 3):
         assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), "0", "--deg").returncode == 0
-    proc = ics35(*NO_TIMEOUTS_OPTION, "play", str(robot), str(taught))
+    proc = ics35(*NO_TIMEOUTS_OPTION, "play", str(robot), str(taught), "--yes")
     assert proc.returncode == 0, proc.stderr
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
 
@@ -112,6 +113,43 @@ def test_without_joints_on_hardware_asks_before_freeing_every_joint(port: str, t
     assert "Free all" not in proc.stderr and "the joints are free" in proc.stderr, proc.stderr
     proc = ics35(*NO_TIMEOUTS_OPTION, command, *files, "--yes", stdin="\nq\n" if command == "teach" else "")
     assert "Free all" not in proc.stderr and "the joints are free" in proc.stderr, proc.stderr
+
+
+def test_play_on_a_serial_line_asks_before_freeing_the_ics35_joints_it_reads(tmp_path: Path) -> None:
+    # play freed every ICS 3.5 joint the motion moves to read where it stands, and said so only afterwards: a
+    # standing humanoid's hips and ankles went limp under the docs' own wave, whose --start-pose stated its knees.
+    # On a serial line it asks first, naming them (not an ICS 3.6 joint, read without freeing, nor one stated):
+    # a "no" or no answer frees nothing, the servos keep holding.
+    line = PtyLine((1, 2, 3), ics36=(3,))
+    try:
+        for servo in line.sim.servos:
+            servo.command_position(8000)  # (a robot standing: every servo holds)
+        robot = tmp_path / "robot.toml"
+        robot.write_text(ROBOT.format(port=line.path))
+        motion = tmp_path / "motion.json"
+        pose = {"a": 0, "b": 0, "c": 0}
+        motion.write_text(
+            json.dumps({"format": "ics35-motion", "version": 1, "keyframes": [{"time": 0.5, "pose": pose}]})
+        )
+        played = [*NO_TIMEOUTS_OPTION, "play", str(robot), str(motion)]
+        for answer in ("n\n", ""):
+            proc = ics35(*played, stdin=answer)
+            assert proc.returncode == 5, proc.stderr
+            assert "Free joints a, b of" in proc.stderr and "ICS 3.5" in proc.stderr, proc.stderr
+            assert "falls" in proc.stderr and "--start-pose" in proc.stderr, proc.stderr
+            assert "nothing was freed" in proc.stderr and "--yes" in proc.stderr, proc.stderr
+            assert not any(servo.free for servo in line.sim.servos)
+        proc = ics35(*played, "--start-pose", "a=20", stdin="n\n")
+        assert proc.returncode == 5 and "Free joint b of" in proc.stderr, proc.stderr
+        assert not any(servo.free for servo in line.sim.servos)
+        proc = ics35(*played, "--start-pose", "a=20,b=0")  # (nothing to free: not asked)
+        assert proc.returncode == 0 and "[y/N]" not in proc.stderr, proc.stderr
+        proc = ics35(*played, stdin="y\n")
+        assert proc.returncode == 0 and "started free" in proc.stderr, proc.stderr
+        proc = ics35(*played, "--yes")
+        assert proc.returncode == 0 and "[y/N]" not in proc.stderr, proc.stderr
+    finally:
+        line.close()
 
 
 @pytest.mark.parametrize(

@@ -15,7 +15,17 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, PortLost, PortNotFound, Robot, State, open_bus, open_robot
+from ics35_async import (
+    BusClosed,
+    InvalidArgument,
+    PortLost,
+    PortNotFound,
+    Robot,
+    State,
+    UnsafeOperation,
+    open_bus,
+    open_robot,
+)
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.errors import error_text
 from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
@@ -1038,3 +1048,53 @@ def test_each_fault_logged_names_its_lines_port(caplog: pytest.LogCaptureFixture
     hip = f"read_eeprom to ID {JOINTS['hip']['id']}: no reply"  # (the neck, ID 1 too, answers it: ICS 3.5 the probe)
     assert said and all(m.startswith((f"{ports['upper']}: ", f"{ports['lower']}: ")) for m in said), said
     assert [m for m in said if hip in m] and all(m.startswith(f"{ports['lower']}: ") for m in said if hip in m), said
+
+
+@pytest.mark.parametrize("asks", ["function", "coroutine"])
+def test_a_start_free_not_confirmed_ends_the_open_with_no_joint_freed_or_moved(asks: str) -> None:
+    # ics35 play freed a standing humanoid's ICS 3.5 joints to read them before a word was said: the open asks the
+    # program's confirm_start_free first, naming the joints about to start free (not an ICS 3.6 joint, read
+    # without freeing, nor a stated one), and a no ends it with nothing freed or moved.
+    rig = make_rig(ics36=[1])  # neck and hip speak ICS 3.6
+    for name in JOINTS:
+        servo = rig.servo(name)
+        servo.command_position(servo.position)  # a robot standing: every servo holds
+    asked: list[list[str]] = []
+
+    def confirm(joints: list[str]) -> bool:
+        asked.append(joints)
+        return False
+
+    async def confirm_later(joints: list[str]) -> bool:
+        await anyio.sleep(0)
+        return confirm(joints)
+
+    async def body(robot: Robot) -> None:
+        raise AssertionError("opened")
+
+    with pytest.raises(UnsafeOperation, match="shoulder, elbow would start free") as refused:
+        run_robot(
+            rig, body, start_pose={"knee": 0.0}, confirm_start_free=confirm if asks == "function" else confirm_later
+        )
+    assert "no joint was freed or moved" in str(refused.value)
+    assert asked == [["shoulder", "elbow"]]
+    for name in JOINTS:
+        assert torque_commands(rig, name) == [], name  # no position, no free command
+        assert not rig.servo(name).free, name
+
+
+def test_a_start_free_confirmed_opens_as_without_the_question_and_none_is_asked_with_nothing_to_free() -> None:
+    rig = make_rig(ics36=[1])
+    asked: list[list[str]] = []
+
+    async def body(robot: Robot) -> dict[str, str]:
+        return dict(robot.start_modes)
+
+    modes = run_robot(rig, body, confirm_start_free=lambda joints: asked.append(joints) or True)
+    assert asked == [["shoulder", "elbow", "knee"]]
+    assert modes == {"neck": "read", "shoulder": "free", "elbow": "free", "hip": "read", "knee": "free"}
+    rig = make_rig(ics36=ALL_ICS36)
+    run_robot(rig, body, confirm_start_free=lambda joints: asked.append(joints) or True)
+    assert len(asked) == 1  # (every joint read: nothing to free, nothing asked)
+    with pytest.raises(InvalidArgument, match="confirm_start_free must be a function"):
+        run_robot(make_rig(), body, confirm_start_free="yes")

@@ -12,7 +12,7 @@ import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import click
 from rich.markup import escape
@@ -23,8 +23,11 @@ from ..robot.motion import SPEEDS, check_pace
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
+from ..transports.wire_device import url_scheme
 from ._common import CliError, ExitCode, choice_option, out, seconds_option, settings_of
 from ._console import TitleInParts, say, say_labelled
+from ._params import yes_option
+from ._prompt import confirm
 from ._robot_common import (
     Opening,
     chosen_joints,
@@ -96,6 +99,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )
 @start_pose_option
+@yes_option
 @click.option(
     "--joints",
     default=None,
@@ -113,6 +117,7 @@ def play(
     on_stop: str,
     ramp: float,
     start_pose_text: str | None,
+    yes: bool,
     joints: str | None,
 ) -> int:
     """Play a keyframe motion (MOTION.json) on the robot ROBOT.toml describes, with a live view.
@@ -121,6 +126,7 @@ def play(
     No hardware:   ics35 play examples/humanoid.toml examples/wave.json
     One arm only:  ics35 play examples/humanoid.toml examples/wave.json --joints right_shoulder_pitch,right_elbow
     Ctrl-C stops smoothly (--ramp), then the joints hold or go free (--on-stop).
+    On a serial line, play asks before freeing ICS 3.5 joints to read them (--yes skips that).
     Exit codes as for every command; 7: the safety watch stopped the motion.
     """
     settings = settings_of(ctx)
@@ -166,7 +172,10 @@ def play(
         nonlocal passes, played, silent, rejoined, untargeted, found
         options = robot_options(settings)
         check_start_pose(description, start_pose, named="--start-pose")  # (the whole robot: a typo names every joint)
-        async with opening.open(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
+        asked = None if yes else ask_before_freeing_to_read(description, robot_file)
+        async with opening.open(
+            moved, on_close=on_stop, start_pose=start_pose, confirm_start_free=asked, **options
+        ) as robot:
             show_warnings(robot)
             if untouched:
                 which = "neither in the motion" if joints is None else "neither in --joints"
@@ -337,6 +346,26 @@ def play(
     but = f", but {'; and '.join(buts)}" if buts else ""
     say(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}", to=out)
     return 0
+
+
+def ask_before_freeing_to_read(description: RobotDescription, robot_file: str) -> Callable[[list[str]], bool]:
+    """The open's question before it frees the ICS 3.5 joints it reads (their only position read): a humanoid
+    standing on them falls.  Asked for those on a serial line (not the simulator); a "no" is exit code 5."""
+
+    def ask(joints: list[str]) -> bool:
+        on_hardware = [j for j in joints if url_scheme(description.lines[description.joints[j].line].port) != "sim"]
+        if on_hardware:
+            one = len(on_hardware) == 1
+            named = f"joint{'' if one else 's'} {', '.join(on_hardware)} of {description.name or robot_file}"
+            servos = "Its servo speaks" if one else "Their servos speak"
+            question = (
+                f"Free {named} to read where {'it stands' if one else 'they stand'}? {servos} ICS 3.5, read only by"
+                " freeing: a robot standing on them falls (--start-pose states where they stand instead)"
+            )
+            confirm(question, False, "nothing was freed")
+        return True
+
+    return ask
 
 
 def _not_targeted(robot: Robot) -> tuple[list[str], list[str]]:

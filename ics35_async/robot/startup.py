@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import os
 import sys
 import warnings
@@ -30,7 +31,15 @@ from .. import units
 from ..bus import CLI_OPTION_NAMES, Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
 from ..engine import State
-from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError, error_text
+from ..errors import (
+    InvalidArgument,
+    PortLost,
+    ReplyError,
+    ReplyTimeout,
+    SerialPortError,
+    UnsafeOperation,
+    error_text,
+)
 from ..group import BusGroup, GroupStream
 from ..policies.scan import anyone_there
 from ..protocol import FREE
@@ -67,6 +76,15 @@ class RobotOptions(BusOptions, total=False):
     start_pose: Mapping[str, float] | None
     """``{joint: degrees}``: where the named joints are, so they hold that angle from the first
     command on (default ``None``)."""
+    confirm_start_free: Callable[[list[str]], bool | Awaitable[bool]] | None
+    """Called with the names of the joints about to start free, once the open knows them and before any is freed
+    or commanded: those whose servos answered as ICS 3.5 (the free command is their only position read) and are
+    not in ``start_pose`` (with ``start_free``, every answering joint not stated).  A false answer ends the open
+    with [`UnsafeOperation`][ics35_async.errors.UnsafeOperation], no joint freed or moved; an exception it raises
+    ends it the same way, raised as it is.  Not called when no joint starts free (default ``None``: not asked).
+    For a program that asks a person first, as ``ics35 play`` does on a serial line: a robot standing on ICS 3.5
+    servos falls as they are freed.  (A joint whose servo did not answer starts offline, and free once it
+    answers: the open's warnings name it.)"""
     start_free: bool
     """Every joint not in ``start_pose`` starts free, ICS 3.6 ones too, read by the free command (which answers
     with the position on both protocols), and the open asks no servo its protocol (default ``False``).  For a
@@ -173,6 +191,7 @@ async def _robot_session(
     probe_interval = options.pop("probe_interval", 0.5)
     start_pose = options.pop("start_pose", None)
     start_free = options.pop("start_free", False)
+    confirm_start_free = options.pop("confirm_start_free", None)
     # Checked here, not left to open_bus: a misspelt robot option (``onclose``) would be refused as an
     # "open_bus option", a call the program never made.
     unknown = set(options) - BusOptions.__optional_keys__
@@ -189,6 +208,8 @@ async def _robot_session(
         raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
     units.check_bool("check_limits", check_limits)
     units.check_bool("start_free", start_free)
+    if confirm_start_free is not None and not callable(confirm_start_free):
+        raise InvalidArgument(f"confirm_start_free must be a function or None, not {type(confirm_start_free).__name__}")
     clash = _PER_LINE & set(bus_options)
     if clash:
         raise InvalidArgument(f"{', '.join(sorted(clash))}: set per line in the robot description, not here")
@@ -219,6 +240,16 @@ async def _robot_session(
         # legs kept the robot from its first pose (read_pose waits for every joint not offline) for three
         # allowances a joint.
         unheard |= {j.name for j in robot.joints.values() if j.line in lines.empty}
+        going_free = [j.name for j in probed if j.name not in readable and j.name not in unheard]
+        if confirm_start_free is not None and going_free:
+            answer = confirm_start_free(list(going_free))
+            if inspect.isawaitable(answer):
+                answer = await answer
+            if not answer:
+                raise UnsafeOperation(
+                    f"joint(s) {', '.join(going_free)} would start free (read by freeing them), which was not "
+                    "confirmed: no joint was freed or moved"
+                )
         streams = {
             line: group[line].stream(
                 [j.id for j in description.joints_on(line)],

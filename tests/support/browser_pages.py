@@ -10,15 +10,13 @@ import contextlib
 import os
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from playwright.sync_api import Browser, Page, expect
 
-from ics35_async.sim import VirtualLine, VirtualServo
-from ics35_async.sim.pty_server import PtyServer
+from tests.support.pty_line import PtyLine
 from tests.support.timing import GUARD, PATIENT_OPTION, scaled
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium-headless-shell")  # see the Makefile's browser target
@@ -39,23 +37,6 @@ SCAN_WAIT_MS = int(scaled(60.0) * 1000)
 # closes), a few seconds for one whose network went (no answer to the server's pings).
 PAGE_GONE_BOUND = scaled(8.0)
 expect.set_options(timeout=WAIT_MS)
-
-
-class PtyLine:
-    """A simulated line served on a pty by a thread of this process."""
-
-    def __init__(self, ids: tuple[int, ...], ics36: tuple[int, ...] = ()) -> None:
-        self.sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids])
-        self.server = PtyServer(self.sim)
-        self.path = str(self.server.open())
-        self.thread = threading.Thread(target=self.server.serve, daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.server.stop()
-        self.thread.join(5)
-        self.server.close()
-        self.sim.close()
 
 
 def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
