@@ -249,6 +249,72 @@ def test_the_joint_table_on_a_narrow_terminal_keeps_every_value_whole() -> None:
     assert "  columns left out: line" in screen, said
 
 
+NARROW_ROBOT = """\
+[lines.upper]
+port = "sim://narrow-upper"
+[lines.legs]
+port = "sim://narrow-legs"
+[joints.head_yaw]
+line = "upper"
+id = 1
+offset = 10.125
+min = -94.5
+max = 74.2
+[joints.r_shoulder_pitch]
+line = "upper"
+id = 2
+min = -84.3
+max = 84.3
+[joints.l_shoulder_roll]
+line = "upper"
+id = 10
+reverse = true
+min = -84.3
+max = 84.3
+[joints.r_knee]
+line = "legs"
+id = 3
+offset = -10.125
+min = -108
+max = 128.2
+"""
+
+
+@pytest.mark.parametrize("columns", [30, 36, 40, 45, 50])
+def test_the_joint_table_on_any_narrow_terminal_cuts_no_value_and_names_every_column_it_leaves_out(
+    columns: int, tmp_path: Path
+) -> None:
+    # At 45 columns a table of short names and wide values ("-10.125", "128.2") was cut by rich: "-10.1…", "128…"
+    # and a header "offse…"; at 40 an ID "…" and "mi…".  Columns now go (named under the table) before a value
+    # is cut: the joints' line first, then long names wrapped, then whether joints are reversed, then from the right.
+    robot = tmp_path / "narrow.toml"
+    robot.write_text(NARROW_ROBOT)
+    joints = load_description(robot).joints
+    code, written = typed_on_a_terminal(["check", str(robot)], [], columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert code == 0 and "Traceback" not in written, said
+    top = next(k for k, line in enumerate(screen) if line.split()[:1] == ["joint"])
+    shown = screen[top].split()
+    end = next(k for k in range(top + 1, len(screen)) if screen[k].lstrip().startswith(("columns left out", "safety:")))
+    caption = " ".join(screen[end : next(k for k in range(end, len(screen)) if "safety:" in screen[k])]).split()
+    left_out = " ".join(caption[3:]).split(", ") if caption[:3] == ["columns", "left", "out:"] else []
+    assert sorted(shown + left_out) == sorted(["joint", "line", "ID", "reverse", "offset°", "min°", "max°"]), said
+    rows = [line.split() for line in screen[top + 1 : end]]
+    values = [row for row in rows if len(row) > 1]  # (a name's wrapped lines hold its next parts alone)
+    assert len(values) == len(joints), said
+    for row, joint in zip(values, joints.values(), strict=True):
+        assert "…" not in " ".join(row[1:]), said  # (a name may be cut, with its ellipsis; a value never)
+        whole = {
+            "ID": str(joint.id),
+            "offset°": f"{joint.offset:g}",
+            "min°": f"{joint.min:g}",
+            "max°": f"{joint.max:g}",
+        }
+        expected = [whole[h] for h in shown if h in whole]
+        assert [v for v in row[1:] if v not in ("upper", "legs", "reversed")] == expected, said
+
+
 def test_the_joint_table_into_a_log_is_printed_whole() -> None:
     # (`COLUMNS=50 ics35 check robot.toml > log`: as the live commands' logs, the whole table at its own width)
     proc = run_process("check", str(EXAMPLES / "humanoid.toml"), columns=50)

@@ -193,13 +193,16 @@ def _first_rows(table: Table, kept: int, noun: str) -> RenderableType:
     return Group(cut, wrapped_at_width(Text(f"… {hidden} more {counted}: a taller terminal shows them", style="dim")))
 
 
-def printed_table(table: Table, leave_out: Sequence[str] = (), *, indent: int = 0) -> RenderableType:
+def printed_table(
+    table: Table, leave_out: Sequence[str] = (), *, indent: int = 0, last: Sequence[str] = ()
+) -> RenderableType:
     """``table`` to print on stdout, ``indent`` spaces in.  On a terminal, fitted to its width (a
-    :class:`FittedTable`, leaving out ``leave_out``'s columns in turn); into a log (a pipe, a file, CI), whole at its
+    :class:`FittedTable`, leaving out ``leave_out``'s columns in turn, and ``last``'s once its names are at their
+    narrowest); into a log (a pipe, a file, CI), whole at its
     own width, whatever the terminal's or ``COLUMNS``: a log is read later, in a wider window or an editor, where
     a column left out or a value cut to fit is lost for good."""
     if out.is_terminal:
-        return Padding(FittedTable(table, leave_out), (0, 0, 0, indent), expand=False)
+        return Padding(FittedTable(table, leave_out, last), (0, 0, 0, indent), expand=False)
     parts: list[RenderableType] = [table]
     if table.title is not None:
         # Its title a line of its own: rich cuts a table's title at the table's width ("monitor /tmp/ics35-sim-x/t").
@@ -230,13 +233,14 @@ class FittedTable:
     lines and columns around it), then the columns ``leave_out`` names in turn until the rest fits (those left
     out named under the table), then its first column's values (names) wrap after their underscores and hyphens,
     then a part of a name still too wide is cut with an ellipsis (down to :data:`SHORTEST_CUT_NAME` cells: the
-    ellipsis says it is cut, where a value cut reads as another), and only then (on a terminal narrower still) do
-    the values give way.  The table's columns that may wrap (words) do; the others should be ``no_wrap``, or rich
+    ellipsis says it is cut, where a value cut reads as another), and only then more columns: those ``last`` names,
+    then from the right (named too): no value is cut short, nor a column drawn to nothing.  The table's columns that may wrap (words) do; the others should be ``no_wrap``, or rich
     cuts them before this does anything."""
 
-    def __init__(self, table: Table, leave_out: Sequence[str]) -> None:
+    def __init__(self, table: Table, leave_out: Sequence[str], last: Sequence[str] = ()) -> None:
         self.table = table
         self.leave_out = leave_out
+        self.last = last
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         yield self.fitted(console, options)
@@ -253,6 +257,16 @@ class FittedTable:
             narrowed = _narrowed(self.table, left_out, names_width, widest)
             return Measurement.get(console, unlimited, narrowed).minimum - width
 
+        def names_width_for(left_out: Sequence[str]) -> int | None:
+            if (over := excess(left_out)) <= 0 or not self.table.columns:
+                return None
+            names = [str(cell) for cell in self.table.columns[0].cells]
+            longest = max(map(cell_len, names), default=0)
+            # (Names are cut to no fewer than SHORTEST_CUT_NAME cells, and one shorter than that not at all, so an
+            # ID's number is never cut.)
+            parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
+            return max(min(parts, SHORTEST_CUT_NAME), longest - over)
+
         if excess(None) <= 0:
             return self.table
         headers = [str(column.header) for column in self.table.columns]
@@ -261,14 +275,14 @@ class FittedTable:
             if excess(left_out) <= 0:
                 break
             left_out.append(header)
-        names_width = None
-        if (over := excess(left_out)) > 0 and self.table.columns:
-            names = [str(cell) for cell in self.table.columns[0].cells]
-            longest = max(map(cell_len, names), default=0)
-            # (Names are cut to no fewer than SHORTEST_CUT_NAME cells, and one shorter than that not at all, so an
-            # ID's number is never cut; on a terminal narrower still, rich cuts the values.)
-            parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
-            names_width = max(min(parts, SHORTEST_CUT_NAME), longest - over)
+        names_width = names_width_for(left_out)
+        # Still too wide with the names at their narrowest: more columns go, from the right, each named under the
+        # table, rather than rich cutting values short ("-10.1…") or drawing a column to nothing, unnamed.
+        spare = [header for header in self.last if header in headers and header not in left_out]
+        spare += [header for header in reversed(headers[1:]) if header not in left_out and header not in spare]
+        while names_width is not None and excess(left_out, names_width) > 0 and spare:
+            left_out.append(spare.pop(0))
+            names_width = names_width_for(left_out)
         return _narrowed(self.table, left_out, names_width)
 
 

@@ -25,6 +25,7 @@ Refused = TypeVar("Refused", bound=CliError)
 
 # The column of the joint table a terminal too narrow for it goes without: each line's IDs are named above it.
 LEAVE_OUT = ("line",)
+LEAVE_OUT_LAST = ("reverse",)  # (once the names are at their narrowest: see FittedTable)
 
 # What a safety trip does, by [safety] action (see the robot-files page).
 TRIP_DOES = {
@@ -128,7 +129,7 @@ def show_robot(path: str, description: RobotDescription) -> None:
             shown(joint.min),
             shown(joint.max),
         )
-    out.print(printed_table(table, LEAVE_OUT, indent=2))
+    out.print(printed_table(table, LEAVE_OUT, indent=2, last=LEAVE_OUT_LAST))
     whole = [joint.name for joint in joints.values() if _whole_travel(joint)]
     if whole:
         say(
