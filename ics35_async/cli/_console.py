@@ -234,8 +234,8 @@ class FittedTable:
     out named under the table), then its first column's values (names) wrap after their underscores and hyphens,
     then a part of a name still too wide is cut with an ellipsis (down to :data:`SHORTEST_CUT_NAME` cells: the
     ellipsis says it is cut, where a value cut reads as another), and only then more columns: those ``last`` names,
-    then from the right (named too): no value is cut short, nor a column drawn to nothing.  The table's columns that may wrap (words) do; the others should be ``no_wrap``, or rich
-    cuts them before this does anything."""
+    then from the right (named too): no value is cut short, nor a column drawn to nothing.  The table's
+    columns that may wrap (words) do; the others should be ``no_wrap``, or rich cuts them before this does anything."""
 
     def __init__(self, table: Table, leave_out: Sequence[str], last: Sequence[str] = ()) -> None:
         self.table = table
