@@ -11,7 +11,17 @@ from ics35_async import protocol
 from ics35_async.engine import State
 from ics35_async.engine.probe import FACTOR, FLOOR, MARGIN, REFRESH, AnswerTimes
 from ics35_async.errors import InvalidArgument, ReplyTimeout
-from tests.support.engine_support import BAUD, FakeSource, Recorded, Servos, Wire, read, ready_engine, wire_time
+from tests.support.engine_support import (
+    BAUD,
+    FakeSource,
+    Recorded,
+    Servos,
+    StalledOnce,
+    Wire,
+    read,
+    ready_engine,
+    wire_time,
+)
 
 NORMAL_WAIT = 0.0005 + 0.020  # BusTiming's turnaround + adapter latency
 
@@ -82,6 +92,25 @@ def test_a_silent_probe_times_out_early_and_resyncs_for_as_long_as_it_waited() -
     # wait (wire + FLOOR) + the resync's quiet (FLOOR) instead of 20.5 ms + 10 ms
     assert wire.now - sent == pytest.approx(wire_time(5) + 2 * FLOOR, abs=1e-6)
     assert wire.engine.counters.resyncs == 1
+
+
+def test_a_probe_whose_echo_has_not_come_waits_the_full_allowance_for_it_and_takes_its_answer() -> None:
+    # Kondo's adapter is an FTDI chip, whose latency timer (16 ms by default) holds an echo and its reply back
+    # together.  A probe's wait learnt from quicker answers gave up before even the echo came, and the servo
+    # there was taken for absent (`scan`, `free all`, `eeprom dump all` missed servos plugged in, exit 0), its
+    # bytes then failing the probes after it.  A servo that does not answer still echoes: with the echo not yet
+    # round, the host or the link is late, and the probe waits its full allowance, as a stream's short wait does.
+    servos = StalledOnce([1, 4], stalled=1, delay=0.012)  # write 1 (the probe of 4) comes round 12 ms late
+    wire = Wire(ready_engine(), servos)
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    probe = Recorded(protocol.ProbeRead(4))
+    wire.submit(probe)
+    assert wire.engine.deadline - wire.now < 0.012  # (a short wait, learnt: shorter than the adapter's hold)
+    wire.settle()
+    assert probe.state == "done" and probe.error is None, probe.error
+    # (and a probe answered 12 ms late teaches the probes after it: they wait the normal allowance now)
+    assert probe_deadline(wire, 6) == pytest.approx(wire_time(5) + NORMAL_WAIT)
 
 
 def silent_free_deadline(wire: Wire, sid: int) -> float:

@@ -941,10 +941,11 @@ class LineEngine:
     def _timeout(self, now: float) -> bytes | None:
         if self._settling:  # nothing more came: the reply is this command's own (see _settle)
             return self._finish(now)
-        if self._short and (self._current is None or self._read_in_slack) and len(self._buf) < self._echo_len:
-            # A stream transaction's (or a read's in its slack) short wait is for silence after the echo: a
-            # servo that does not answer still echoes.  With the echo not yet round, the host or the link is
-            # late, and giving up would only fail whatever the bytes land in: wait the full allowance.
+        if self._short and len(self._buf) < self._echo_len:
+            # A short wait (a stream transaction's, a read's in its slack, a probe's) is for silence after the
+            # echo: a servo that does not answer still echoes.  With the echo not yet round, the host or the link
+            # is late (an FTDI adapter's latency timer holds echo and reply together), and giving up would take a
+            # servo there for absent and fail whatever its bytes land in: wait the full allowance.
             self._short = False
             full = self._full_deadline()
             if now < full:

@@ -15,6 +15,10 @@ other transactions do (its answer brings the servo back), but no longer than
 that once its stream has left with it on the wire: nobody hears its answer
 then (see ``LineEngine.detach_source``).
 
+As the stream's wait (below), a probe's is for silence after the echo: one whose echo has not come
+round by then waits the normal allowance (an FTDI adapter's latency timer holds an echo and its reply
+together; a servo given up on that way was taken for absent).
+
 A probe that timed out with no reply bytes is followed by a resync of
 ``latency`` (plus the link's learnt extra) instead of the full quiet time.
 The link's own bookkeeping still measures against the normal allowance: a
