@@ -105,6 +105,13 @@ def test_a_robot_file_that_breaks_a_rule_is_refused_naming_its_key(cli: Any, tmp
     assert result.code == ExitCode.USAGE, result.err
     assert "joints.wrist.id" in result.err and "arm.toml" in result.err, result.err
     assert "Traceback" not in result.err
+    # With --json a script reading stdout got nothing at all: the same error, as data (and the same exit code).
+    wave = motion_file(tmp_path / "wave.json", {"shoulder": 20})
+    result = cli("check", str(path), str(wave), "--json")
+    assert result.code == ExitCode.USAGE, result.err
+    doc = result.json()
+    assert doc["robot"] is None and doc["motions"] == [], doc
+    assert "joints.wrist.id" in doc["error"] and "nothing was sent" not in doc["error"], doc
 
 
 @pytest.mark.parametrize("port", ["sim://?ids=", "sim://?idz=1-3", "sim://?ids=1-4&ics36=7"])

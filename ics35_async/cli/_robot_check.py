@@ -158,7 +158,10 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
     try:
         description = load_robot_file(robot_file)
     except CliError as exc:
-        raise _said_of_check(exc) from None
+        error = _said_of_check(exc)
+        if as_json:  # (the motions are not checked against a robot file that breaks a rule)
+            emit_json({"robot": None, "error": error.message, "motions": []})
+        raise error from None
     # Every motion, each on its own: checking the motions taught before a calibration wants each one's verdict.
     checked: list[tuple[str, Motion | MotionFileError]] = []
     for path in motion_files:
