@@ -281,6 +281,20 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
 
 
+def test_the_search_of_the_other_rates_never_says_a_rate_that_answered_did_not() -> None:
+    # `ics35 --baud 1250000 info 1` on a line at 115200: the search went on after 115200 answered (it looks at every
+    # rate) and said "no answer at 115200 baud either: trying 625000 baud ...", above "servo 1 does not answer at
+    # 1250000 baud, but does at 115200 baud".
+    from tests.support.terminal import screen_of, typed_on_a_terminal
+
+    port = "sim://?ids=1-3"
+    code, shown = typed_on_a_terminal(["--port", port, "--baud", "1250000", "--timeout", "0.05", "info", "1"], [])
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.WRONG_BAUD, screen
+    assert "no answer at 1250000 baud: trying 115200 baud ... trying 625000 baud too ..." in screen, screen
+    assert "115200 baud either" not in screen and "does at 115200 baud" in screen, screen
+
+
 def test_a_wrong_id_is_said_asked_at_every_rate_as_each_is_tried() -> None:
     # `ics35 --port sim://?ids=1-3 info 5`, an ID nobody has: the search of the other rates said "no answer at 115200
     # baud" before each of them ("trying 625000", then again "trying 1250000", as if 625000 had not been asked), and
@@ -290,7 +304,7 @@ def test_a_wrong_id_is_said_asked_at_every_rate_as_each_is_tried() -> None:
     code, shown = typed_on_a_terminal(["--port", "sim://?ids=1-3", "--timeout", "0.05", "info", "5"], [])
     screen = " ".join(" ".join(screen_of(shown)).split())
     assert code == ExitCode.NO_REPLY, screen
-    tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 625000 baud either: trying 1250000 baud ..."
+    tried = "no answer at 115200 baud: trying 625000 baud ... trying 1250000 baud too ..."
     assert tried in screen, screen
     assert "error: servo 5 did not answer on sim://?ids=1-3 at 115200 baud, nor at 625000 or 1250000 baud" in screen
 

@@ -139,7 +139,7 @@ def test_demos_status_lines_wrap_at_words(columns: int) -> None:
 
 @pytest.mark.parametrize("columns", [30, 50])
 def test_the_rate_searchs_lines_wrap_at_words(columns: int) -> None:
-    # At 50 columns: "no answer at 625000 baud either: trying 1250000 b" / "aud ...".
+    # At 50 columns a line of the search was cut mid-word ("... trying 1250000 b" / "aud ...").
     args = ["--port", "sim://?ids=1&baud=625000", "get", "1", "speed"]
     code, written = typed_on_a_terminal(args, [], columns=columns)
     screen = screen_of(written, width=columns)
