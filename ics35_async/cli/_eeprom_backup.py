@@ -199,7 +199,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 f"{'ID' if len(answered) == 1 else 'IDs'} {ids_text(answered)} (a servo "
                 f"at another rate does not: {settings.command_line('scan')} finds every rate)"
             )
-        else:
+        elif read.lost is not None or read.garbled or read.failed:  # (else the dump's own error, at its end)
             say_labelled("[yellow]warning:[/yellow]", f"no answer from ID(s) {ids_text(missing)}: not saved")
     if read.garbled:
         say_labelled(
@@ -253,6 +253,15 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             ExitCode.COMMUNICATION,
             f"servo(s) at ID(s) {ids_text(unsaved)} answered but could not be saved (see above)",
             *([f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"] if images else []),
+        )
+    if missing and len(ids) > 1 and not every_id(ids):
+        # IDs listed are servos expected: a backup missing some is not a success for a script to go on from.
+        raise CliError(
+            ExitCode.NO_REPLY,
+            f"no answer from ID(s) {ids_text(missing)} at {settings.baud} baud: not saved",
+            *([f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"] if images else []),
+            f"a servo at another rate does not answer at this one ({settings.command_line('scan')} finds every "
+            f"rate); {settings.command_line('eeprom', 'dump', 'all')} saves whichever servos answer",
         )
     return 0
 
