@@ -337,7 +337,9 @@ def test_a_dump_of_listed_ids_saves_those_that_answer_and_fails_naming_the_other
     # the others are saved, and the dump fails naming the missing (exit 4); `all` saves whichever answer.
     _, url = sim_line([2, 5])
     target = tmp_path / "backup.json" if into == "file" else tmp_path / "backup"
-    result = cli("--port", url, "--timeout", "0.005", "eeprom", "dump", "2,5-7", "-o", f"{target}{'/' * (into == 'dir')}")
+    result = cli(
+        "--port", url, "--timeout", "0.005", "eeprom", "dump", "2,5-7", "-o", f"{target}{'/' * (into == 'dir')}"
+    )
     assert result.code == ExitCode.NO_REPLY, result.err
     err = " ".join(result.err.split())
     assert "error: no answer from ID(s) 6, 7 at 115200 baud: not saved" in err, err
