@@ -751,6 +751,34 @@ def test_a_watched_joint_whose_telemetry_cannot_be_read_is_said_once_an_episode(
     assert not [r for r in caplog.records if "hip" in r.getMessage() and "cannot hold" in r.getMessage()]
 
 
+def test_a_watched_joint_whose_servo_stopped_answering_altogether_is_not_said_blind(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # A servo unplugged mid-motion: its temperature and current reads failed twice before the stream took it
+    # offline, and the watch said "its servo may still answer its position commands", pointing away from the
+    # cause (the servo was gone: the offline rule says so).  Said only while its position still answers.
+    rig = make_rig({"max_temperature_c": 70, "max_current": 40, "telemetry_per_cycle": 2})
+
+    def said() -> list[str]:
+        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            # (offline only after 50 failed cycles: the reads fail twice long before)
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **{**FAST, "offline_after": 50}) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                rig.lower.remove_servo(2)
+                until = robot.telemetry["knee"].errors + 4
+                await frames_until(robot, lambda: robot.telemetry["knee"].errors >= until)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert not said(), said()
+
+
 def test_telemetry_that_cannot_be_read_is_not_said_where_no_limit_needs_it(caplog: pytest.LogCaptureFixture) -> None:
     rig = make_rig()  # no [safety] limits: the reads only feed the views, which show "-" by themselves
 

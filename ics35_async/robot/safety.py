@@ -120,6 +120,7 @@ class SafetyWatch:
         self.joints = list(joints)
         self.telemetry: dict[str, JointTelemetry] = {j.name: JointTelemetry() for j in self.joints}
         self.rounds: dict[str, int] = dict.fromkeys(self.buses, 0)
+        self._said_blind: set[str] = set()  # the joints whose stretch of failed reads was said (see _say_blind)
 
     def forget(self, joints: Iterable[str]) -> None:
         """Drop the readings of ``joints``, whose servo went offline or whose line lost its port: it may come back
@@ -157,7 +158,7 @@ class SafetyWatch:
                         self.rounds[line] += 1
                     if joint.name not in frame.offline and robot.has_answered(joint.name):
                         try:
-                            await self._read(robot, joint, servos[joint.name])
+                            await self._read(robot, joint, servos[joint.name], joint.name in frame.failed)
                         except PortLost:
                             # Reconnecting (reconnect=True): the line runs no cycle until it is back, and its
                             # reads go on with its cycles then.  (Without reconnect the robot's frames end
@@ -166,10 +167,17 @@ class SafetyWatch:
         except IcsError:
             return  # the robot's frames ended (its block, a line lost for good): the robot reports that itself
 
-    async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
+    async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo, position_failed: bool) -> None:
+        """Read ``joint``'s temperature and current, and trip or clear its stop on them; ``position_failed``: its
+        position did not answer in the frame this round follows."""
         seen = self.telemetry[joint.name]
         reading = await self._reading(joint, servo, seen)
         if reading is None:
+            if seen.stale and not position_failed and joint.name not in self._said_blind:
+                # (once a stretch; not while its position fails too: the servo is gone, which the offline rule
+                # says, not a servo that still answers its position commands)
+                self._said_blind.add(joint.name)
+                self._say_blind(joint)
             return
         crossed = self._crossings(joint, *reading)
         confirmed: set[str] | None = None  # (the limits a second reading must cross too to trip)
@@ -181,12 +189,13 @@ class SafetyWatch:
             confirmed = {stop.reason for stop in crossed}
             reading = await self._reading(joint, servo, seen)
             if reading is None:
-                return
+                return  # (a stretch of failed reads begins: said from the next round on, see above)
             crossed = self._crossings(joint, *reading)
             if crossed and not confirmed & {stop.reason for stop in crossed}:
                 return  # each limit crossed by one reading only: read again next round
         seen.reads += 1
         seen.failed_in_row = 0
+        self._said_blind.discard(joint.name)
         seen.temperature_c, seen.current = reading
         self.check(robot, joint, seen, confirmed)
 
@@ -199,8 +208,6 @@ class SafetyWatch:
         except ReplyError:
             seen.errors += 1
             seen.failed_in_row += 1
-            if seen.failed_in_row == STALE_AFTER_FAILED_READS:  # (once an episode: a reading starts it again)
-                self._say_blind(joint)
             return None
         return units.temperature_to_celsius(raw_temperature), units.current_from_raw(raw_current).magnitude
 
@@ -217,12 +224,12 @@ class SafetyWatch:
         if not limits:
             return  # (nothing to guard: the views show "-" by themselves)
         log.warning(
-            "joint %s (line %s, ID %s): its temperature and current did not read %d times in a row (its servo may "
-            "still answer its position commands): the safety watch cannot hold it to %s until they read again",
+            "joint %s (line %s, ID %s): its temperature and current did not read %d times in a row (its servo "
+            "still answers its position commands): the safety watch cannot hold it to %s until they read again",
             joint.name,
             joint.line,
             joint.id,
-            STALE_AFTER_FAILED_READS,
+            self.telemetry[joint.name].failed_in_row,
             " and ".join(limits),
         )
 
