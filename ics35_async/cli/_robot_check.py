@@ -8,6 +8,7 @@ what a safety trip does).
 
 from __future__ import annotations
 
+import os
 from typing import Any, TypeVar
 
 import click
@@ -16,6 +17,7 @@ from rich.table import Table
 
 from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
+from ..transports.wire_device import url_scheme
 from ..units import shown
 from ._common import CliError, ExitCode, emit_json, ids_named, json_option, out
 from ._console import printed_table, say, say_error
@@ -112,7 +114,9 @@ def show_robot(path: str, description: RobotDescription) -> None:
     for line in lines.values():
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
         ids = ids_named(joint.id for joint in description.joints_on(line.name))
-        say(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, {ids}", to=out)
+        # (a device path: whether it is there now, so that a mistyped one is seen before play; no port is opened)
+        absent = " (not there now)" if not url_scheme(line.port) and not os.path.exists(line.port) else ""
+        say(f"  line {escape(line.name)}: {escape(line.port)}{absent} at {line.baudrate} baud, {rate}, {ids}", to=out)
     # (no value wraps: a terminal too narrow leaves the line out, then wraps the names: see FittedTable)
     table = Table(box=None, pad_edge=False)
     for heading in ("joint", "line", "ID", "reverse"):
