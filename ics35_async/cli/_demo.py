@@ -20,6 +20,7 @@ from ._common import (
     every_id,
     id_ranges,
     ids_named,
+    none_of_them_answered,
     out,
     run,
     seconds_option,
@@ -139,7 +140,7 @@ def demo(
     started: list[LiveState] = []  # (what it left the servos in, should a second Ctrl-C force it out)
     asking = AskingIds(settings, False, reconnect=reconnect, seconds=seconds)
 
-    async def body() -> tuple[LiveState, Telemetry, Recorder]:
+    async def body() -> tuple[LiveState, Telemetry, Recorder] | list[int]:
         async with settings.bus(reconnect=reconnect) as bus:
             silent: list[int] = []
             if ids and not asked_all:
@@ -152,9 +153,11 @@ def demo(
                     answered, garbled = await asking.ask(
                         bus, f"asking {ids_named(chosen)}", lambda: probe_ids(bus, chosen)
                     )
-                    # (none answering: streamed as they are, the run's end says so and looks at other rates)
-                    if answered:
-                        silent = [i for i in chosen if i not in answered and i not in garbled]
+                    if not answered and not garbled:
+                        # Not one of them answered: said at once, the port closed, with the rate they answer at if
+                        # another (a wave of "off" rows for --seconds said it only then).
+                        return list(chosen)
+                    silent = [i for i in chosen if i not in answered and i not in garbled]
             else:
                 chosen = await asking.ask(
                     bus, "scanning", lambda: discover(bus, settings, shown, False, asked_all=asked_all)
@@ -178,9 +181,12 @@ def demo(
             return await run_live(settings, bus, chosen, state, options, targets, plan)
 
     try:
-        state, telemetry, recorder = run(settings, body)
+        ran = run(settings, body)
     except CliError as exc:
         raise forced_out(settings, started[0] if started else None, asking.last_words(exc)) from None
+    if isinstance(ran, list):
+        raise none_of_them_answered(settings, ran)
+    state, telemetry, recorder = ran
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     cycles = f"{state.cycle} cycle{'' if state.cycle == 1 else 's'}"
     servos = f"{len(state.ids)} servo{'' if len(state.ids) == 1 else 's'}"

@@ -15,6 +15,7 @@ from ._common import (
     ids_named,
     json_option,
     no_servo_among,
+    none_of_them_answered,
     run,
     seconds_option,
     settings_of,
@@ -87,7 +88,7 @@ def monitor(
 
     asking = AskingIds(settings, as_json, reconnect=reconnect, seconds=seconds)
 
-    async def body() -> tuple[LiveState, Telemetry, Recorder]:
+    async def body() -> tuple[LiveState, Telemetry, Recorder] | list[int]:
         async with settings.bus(reconnect=reconnect) as bus:
             if ids and not every_id(ids):
                 chosen = ids
@@ -105,6 +106,10 @@ def monitor(
                 f"asking {ids_named(chosen)}",
                 lambda: policies.plan_position_stream(bus, chosen, free_ics35=free_servos),
             )
+            if set(chosen) <= set(plan.silent):
+                # Not one of them answered: said at once, the port closed, with the rate they answer at if another
+                # (a live table of "off" rows until Ctrl-C said it only then).
+                return list(chosen)
             freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
@@ -131,9 +136,12 @@ def monitor(
             return await run_live(settings, bus, plan.streamed, state, options, None, plan)
 
     try:
-        state, telemetry, recorder = run(settings, body)
+        ran = run(settings, body)
     except CliError as exc:
         raise asking.last_words(exc) from None
+    if isinstance(ran, list):
+        raise none_of_them_answered(settings, ran)
+    state, telemetry, recorder = ran
     final_report(settings, state, telemetry, recorder, options, f"ics35 monitor: {shown}")
     return 0
 
