@@ -52,8 +52,10 @@ def check_pulse_limits(servo_id: int, position: object, low: int, high: int) -> 
     if number is None:
         raise InvalidArgument(f"position must be an int, not {type(position).__name__}")
     if not low <= number <= high:
+        degrees = units.position_to_degrees  # (in degrees too: `ics35 move 1 60 --deg` names the angle asked)
         raise InvalidArgument(
-            f"position {number} is outside servo {servo_id}'s EEPROM pulse limits {low}..{high}; nothing was sent"
+            f"position {number} ({degrees(number):+.1f}°) is outside servo {servo_id}'s EEPROM pulse limits "
+            f"{low}..{high} ({degrees(low):+.1f}..{degrees(high):+.1f}°); nothing was sent"
         )
     return number
 

@@ -281,6 +281,15 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
 
 
+def test_an_id_list_that_is_not_one_is_refused_with_one_example(cli: Any) -> None:
+    # `ics35 free x`: "'x' is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7) (IDs are 0..31; write e.g.
+    # 3, 1-12, 0,4,7 or all)": the example twice, the first without `all`.
+    result = cli("free", "x")
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert said.count("write e.g.") == 1 and "0,4,7 or all" in said, said
+
+
 def test_the_search_of_the_other_rates_never_says_a_rate_that_answered_did_not() -> None:
     # `ics35 --baud 1250000 info 1` on a line at 115200: the search went on after 115200 answered (it looks at every
     # rate) and said "no answer at 115200 baud either: trying 625000 baud ...", above "servo 1 does not answer at

@@ -584,6 +584,8 @@ def test_a_jog_and_ics35_move_refuse_a_target_outside_the_pulse_limits_in_the_sa
         other.close()
     assert result.code != 0 and servo.target is None
     assert "6000..9000" in by_page and by_page in " ".join(result.err.split())
+    # (in degrees too: `move 1 60 --deg` was refused as "position 9278 is outside ...", the angle asked unnamed)
+    assert "position 9500 (+67.5°) is outside servo 1's EEPROM pulse limits 6000..9000 (-50.6..+50.6°)" in by_page
 
 
 def test_the_motion_count_moves_only_when_motion_changes_and_the_answer_to_a_switch_carries_it(serve: Any) -> None:

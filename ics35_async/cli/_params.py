@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import re
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -76,7 +77,9 @@ class ListType(click.ParamType[list[int]]):
         try:
             return self._parse(str(value))
         except InvalidArgument as exc:
-            self.fail(f"{exc}{self._hint}", param, ctx)
+            # (the hint's example in place of the library's, which knows nothing of `all`: one example, not two)
+            said = re.sub(r" \(write e\.g\. [^)]*\)$", "", str(exc)) if self._hint else str(exc)
+            self.fail(f"{said}{self._hint}", param, ctx)
 
 
 class SignedValuesCommand(click.Command):
