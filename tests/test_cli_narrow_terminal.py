@@ -275,3 +275,14 @@ def test_help_below_fifty_columns_wraps_at_words(columns: int) -> None:
     text = " ".join(line.strip() for line in screen)
     assert "Watch servos live: position, current, temperature, per-ID errors and the cycle rate." in text, screen
     assert "Keep watching through a lost port (an adapter unplugged, a loose cable)" in text, screen
+
+
+def test_infos_title_wraps_between_its_words() -> None:
+    # `ics35 --port /tmp/trial3/tty1 info 1` at 40 columns: "servo 1 on /tmp/trial3/tty1 at 115200 ba" / "ud": the
+    # table's title, which the consoles' soft wrap left to the terminal to cut.
+    columns = 40
+    port = "sim://a-line-of-18?ids=1"  # ("servo 1 on sim://a-line-of-18?ids=1 at 115200 baud": past 40 by a word)
+    code, written = typed_on_a_terminal(["--port", port, "info", "1"], [], columns=columns, rows=80)
+    screen = screen_of(written, width=columns)
+    assert code == 0, screen
+    assert screen[:2] == [f"servo 1 on {port} at", "115200 baud"], screen

@@ -129,11 +129,9 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
             }
         )
         return 0
-    live = Table(
-        title=f"servo {servo_id} on {escape(settings.port)} at {settings.baud} baud",
-        title_justify="left",
-        show_header=False,
-    )
+    # (its title a line above it, wrapped between its words: as the table's title the terminal cut it mid-word)
+    print_heading(f"servo {servo_id} on {settings.port} at {settings.baud} baud")
+    live = Table(show_header=False)
     live.add_column("what")
     live.add_column("value")
     if got["protocol"] is not None:
