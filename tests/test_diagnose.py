@@ -267,7 +267,7 @@ def test_doctor_text_and_no_servo(cli: Any) -> None:
     result = cli("doctor", *line, "--samples", "20")
     assert result.code == 0
     assert "latency timer suspected: 16 ms" in result.out and "fix:" in result.err
-    none = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
+    none = cli("doctor", "--port", "sim://?ids=none", "--ids", "0-3", "--json")
     assert none.code == 4
     assert none.json()["servos"] == [] and "no servo answered" in none.err
 
@@ -538,7 +538,7 @@ def test_doctor_says_why_no_servo_answered_as_the_other_commands_do(cli: Any) ->
     no_echo = cli("doctor", "--port", "sim://?ids=5&echo=0", "--ids", "1")
     assert no_echo.code == 4, no_echo.err
     assert "not even the echo" in no_echo.err and "--no-echo" in no_echo.err
-    nobody = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3")
+    nobody = cli("doctor", "--port", "sim://?ids=none", "--ids", "0-3")
     assert nobody.code == 4, nobody.err
     assert "no servo answered" in nobody.err and "hint: check the servo has power" in nobody.err
 
@@ -547,10 +547,10 @@ def test_doctor_says_which_other_rates_it_tried_when_nothing_answered_at_any(cli
     # Nothing at the line's rate, nor at the others doctor then asks (a whole allowance each): the wait went
     # unexplained, and the advice read as if the other rates were still to be tried.  One line names them, in the
     # text and in the JSON's finding alike (on a terminal each is also said as it is tried: see below).
-    text = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3")
+    text = cli("doctor", "--port", "sim://?ids=none", "--ids", "0-3")
     assert text.code == 4, text.err
     assert text.err.count("nor any device at 625000 or 1250000 baud") == 1, text.err
-    assert "error: no servo answered on sim://?ids=9 at 115200 baud, nor any device at 625000 or 1250000 baud" in (
+    assert "error: no servo answered on sim://?ids=none at 115200 baud, nor any device at 625000 or 1250000 baud" in (
         text.err
     )
     report = cli("doctor", "--port", "sim://?ids=none", "--baud", "625000", "--json")
@@ -646,6 +646,16 @@ def test_doctors_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -
     assert code == ExitCode.WRONG_BAUD, screen
     tried = "no answer at 115200 baud: trying 625000 baud ... trying 1250000 baud too ..."
     assert tried in screen and "--baud 1250000" in screen, screen
+
+
+def test_doctor_asked_ids_nobody_has_says_other_ids_answer_not_that_no_device_does(cli: Any) -> None:
+    # `doctor --ids 9` on a line of servos 1-6: "no servo answered on ... at 115200 baud, nor any device at 625000
+    # or 1250000 baud", where devices answer at 115200, at their own IDs.
+    result = cli("--port", "sim://doctor-other-ids?ids=1-6", "--timeout", "0.05", "doctor", "--ids", "9")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join((result.out + result.err).split())
+    assert "no servo at ID 9 answered on sim://doctor-other-ids?ids=1-6 at 115200 baud" in said, said
+    assert "a servo at another ID does" in said and "scan lists the IDs" in said and "nor any device" not in said, said
 
 
 ADAPTER_WORDS = ("lsusb", "ftdi_sio", "latency_timer", "USB vendor 165C", "udev")

@@ -22,7 +22,19 @@ from ..errors import IcsError
 from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
-from ._common import CliError, ExitCode, all_ids_option, emit_json, ids_text, json_option, out, run, settings_of
+from ._common import (
+    CliError,
+    ExitCode,
+    all_ids_option,
+    emit_json,
+    every_id,
+    ids_text,
+    json_option,
+    no_servo_among,
+    out,
+    run,
+    settings_of,
+)
 from ._console import say, say_labelled
 from ._errors import answered_garbled, nothing_answered, trying_rates
 from ._settings import Settings
@@ -37,13 +49,20 @@ def machine_ports() -> list[SerialPortInfo]:
         return []
 
 
-async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) -> CliError:
-    """Why no servo answered, as the other commands say it: the adapter when not even the echo came back,
-    two servos sharing an ID when replies came garbled, the rate a device answers at when it is another,
-    else what to check."""
+async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan, ids: list[int]) -> CliError:
+    """Why no servo among ``ids`` answered, as the other commands say it: the adapter when not even the echo came
+    back, two servos sharing an ID when replies came garbled, servos at other IDs when only some were asked, the
+    rate a device answers at when it is another, else what to check."""
     where = f"{settings.port} at {settings.baud} baud"
     if probed.silent and settings.echo:
         return nothing_answered(settings, where, silent=True)
+    if not probed.garbled and not every_id(ids) and await policies.anyone_there(bus):
+        # (`--ids 9` on a line of servos 1-6: the line and its rate are right, the IDs asked are not)
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"{no_servo_among(ids)} answered on {where}, but a servo at another ID does",
+            f"{settings.command_line('scan')} lists the IDs on the line; pass those to --ids",
+        )
     search = policies.RateSearch((settings.baud,))
     if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
         # (advice only: a port that cannot be opened again leaves what was said)
@@ -80,7 +99,7 @@ def measure(
         async with settings.bus() as bus:
             probed = await policies.probe_ids(bus, ids, id_read_first=False)
             found = list(probed.answered)
-            nobody = None if found else await why_nobody(settings, bus, probed)
+            nobody = None if found else await why_nobody(settings, bus, probed, ids)
             samples, failed = await measure_round_trips(bus, found, per_servo=per_servo)
             system.timer_while_open(system_root)  # (why_nobody may have reopened it: open again by now)
             report = LineReport(
