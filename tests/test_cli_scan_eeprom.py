@@ -321,6 +321,16 @@ def test_bulk_dump_and_restore_each_servo_to_its_own_id(cli: Any, sim_line: Any,
         assert sim.servo(i).calibration_intact
 
 
+def test_a_scan_of_some_ids_that_finds_none_names_them_and_points_at_the_others(cli: Any) -> None:
+    # `scan --ids 20-31` on a line of servos 1-6: "no servo answered on ... at 115200, 625000, 1250000 baud" with the
+    # hint "ics35 scan tries every ID at every baud rate", given to a scan that had been told to try fewer.
+    result = cli("--port", "sim://?ids=1-6", "--timeout", "0.02", "scan", "--ids", "20-31", "--bauds", "115200")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    assert "no servo among 20-31 answered on sim://?ids=1-6 at 115200 baud" in said, said
+    assert "without --ids" in said and "tries every ID at every baud rate" not in said, said
+
+
 def test_bulk_dump_saves_the_servos_that_answer(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     _, url = sim_line([2, 5])
     result = cli("--port", url, "--timeout", "0.005", "eeprom", "dump", "all", "-o", str(tmp_path) + "/")

@@ -27,8 +27,10 @@ from ._common import (
     answered_garbled,
     confirm,
     emit_json,
+    every_id,
     ids_text,
     json_option,
+    no_servo_among,
     nothing_answered,
     out,
     run,
@@ -39,6 +41,7 @@ from ._common import (
 )
 from ._console import print_heading, printed_table, say, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
+from ._errors import NO_REPLY_HINTS
 
 # --------------------------------------------------------------------------- scan
 
@@ -266,7 +269,13 @@ def scan(
             where = f"{settings.port} (at the bridge's own rate)"
         if report.garbled:
             raise answered_garbled(settings, where, [(baud, i) for baud, i, _ in report.garbled])
-        raise nothing_answered(settings, where, silent=report.silent)
+        failure = nothing_answered(settings, where, silent=report.silent)
+        if not every_id(ids) and not (report.silent and settings.echo):
+            # Told to try some IDs: those are named, and the hint that scan tries every ID says how.
+            failure.message = f"{no_servo_among(ids)} answered on {where}"
+            every = f"check the wiring and the servo ID ({named.command_line('scan')} without --ids tries every ID)"
+            failure.hints = [every if hint == NO_REPLY_HINTS[1] else hint for hint in failure.hints]
+        raise failure
     return 0
 
 
