@@ -19,6 +19,7 @@ from ..transports import rate_blind_note
 from ._common import (
     ALL_BAUDS,
     BAUD_LIST,
+    NO_REPLY_HINTS,
     SERVO_ID,
     CliError,
     ExitCode,
@@ -41,7 +42,6 @@ from ._common import (
 )
 from ._console import print_heading, printed_table, say, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
-from ._errors import NO_REPLY_HINTS
 
 # --------------------------------------------------------------------------- scan
 
