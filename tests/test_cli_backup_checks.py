@@ -371,6 +371,8 @@ def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: 
     assert "servo 3: unknown" in result.out
     assert "lost" in result.err or "unplugged" in result.err
     assert [t.servo_id for t in sim.log] == [1, 2]  # servo 3 never heard its free: unknown is right
+    # (and the command that frees them once the port is back, as a Ctrl-C's account gives it)
+    assert f"free them with: ics35 --port {url} free 2-3" in " ".join(result.err.split()), result.err
 
 
 def test_restore_clearing_pwminh_advises_what_fits_restore(cli: Any, sim_line: Any, tmp_path: Path) -> None:

@@ -275,7 +275,11 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         if report.absent:
             say(f"no answer from ID(s) {id_ranges(report.absent)} at {settings.baud} baud: no servo there")
     if report.lost is not None:
-        raise translate(settings, report.lost)
+        lost = translate(settings, report.lost)
+        if report.unknown:  # (the command that frees them once the port is back, as a Ctrl-C's account gives it)
+            again = "all" if every_servo else ids_argument(report.unknown)
+            lost.hints.append(f"once the port is back, free them with: {settings.command_line('free', again)}")
+        raise lost
     if report.failed:
         timed_out = any(isinstance(e, ReplyTimeout) for e in report.failed.values())
         code = ExitCode.NO_REPLY if timed_out else ExitCode.COMMUNICATION
