@@ -24,7 +24,7 @@ from ics35_async.cli._console import TitleInParts
 from ics35_async.cli._live import forced_out
 from ics35_async.cli._live_view import LiveState
 from ics35_async.eeprom import BaudRate, Flags
-from ics35_async.errors import InvalidArgument
+from ics35_async.errors import InvalidArgument, PortLost
 from ics35_async.extras import install_command, installed_from
 from ics35_async.protocol import ReadEeprom, ReadParam, WriteId
 from ics35_async.sim import VirtualServo
@@ -515,6 +515,25 @@ def test_permission_denied_points_at_dialout() -> None:
     error = translate(Settings(port="/dev/ttyUSB0"), PortPermissionDenied(13, "permission denied opening it"))
     assert error.code == ExitCode.PORT
     assert any("dialout" in hint for hint in error.hints)
+
+
+def test_a_lost_port_is_hinted_as_what_it_is(tmp_path: Path) -> None:
+    # "hint: is the USB adapter still plugged in?" under `ics35 sim`'s pty gone (a stopped simulator) and under the
+    # built-in simulator's own unplugged port: no USB adapter behind either.
+    lost = PortLost("port lost: the device went away")
+    assert translate(Settings(port="/dev/ttyUSB0"), lost).hints == ["is the USB adapter still plugged in?"]
+    assert translate(Settings(port="sim://arm?ids=1"), lost).hints == []  # (its own words say it was unplugged)
+    import pty as ptys
+
+    master, slave = ptys.openpty()
+    try:
+        link = tmp_path / "ttyICS0"
+        link.symlink_to(os.ttyname(slave))
+        (hint,) = translate(Settings(port=str(link)), lost).hints
+        assert "USB" not in hint and "simulator" in hint and "bridge" in hint, hint
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 @pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="giving a file a group needs root")

@@ -25,6 +25,18 @@ NO_REPLY_HINTS = (
 )
 
 
+def lost_port_hints(port: str) -> list[str]:
+    """What to look at when ``port`` went away: the USB adapter, but not for the built-in simulator (its error says
+    it was unplugged) nor for a pty (``ics35 sim``'s, a bridge's: no adapter behind it)."""
+    from ..diagnose.system import is_pseudo_terminal
+
+    if url_scheme(port) == "sim":
+        return []
+    if is_pseudo_terminal(port):
+        return ["a pseudo-terminal: is the simulator or bridge that served it (ics35 sim, socat) still running?"]
+    return ["is the USB adapter still plugged in?"]
+
+
 def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     """The person-facing form of a library error."""
     text = settings.as_given(errors.error_text(exc))
@@ -57,7 +69,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     if isinstance(exc, errors.PortLost | errors.ClosedByPortLoss):
         if is_network_link(settings.port):
             return CliError(ExitCode.PORT, text, *bridge_hints(settings))
-        return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")
+        return CliError(ExitCode.COMMUNICATION, text, *lost_port_hints(settings.port))
     if isinstance(exc, errors.BusClosed):
         return CliError(ExitCode.COMMUNICATION, text)
     if isinstance(exc, errors.UnsafeOperation):
