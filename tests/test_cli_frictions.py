@@ -281,6 +281,14 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
 
 
+def test_set_id_given_an_old_id_too_says_it_takes_the_new_one_only(cli: Any) -> None:
+    # `ics35 set-id 1 5` (old and new, as other tools take them): "Got unexpected extra argument (5)", no more.
+    result = cli("set-id", "1", "5")
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert "takes the new ID only" in said and "ics35 set-id 5" in said, said
+
+
 def test_an_id_list_that_is_not_one_is_refused_with_one_example(cli: Any) -> None:
     # `ics35 free x`: "'x' is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7) (IDs are 0..31; write e.g.
     # 3, 1-12, 0,4,7 or all)": the example twice, the first without `all`.

@@ -305,7 +305,24 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
     return survey.lone_id
 
 
-@click.command(name="set-id")
+class _NewIdOnly(click.Command):
+    """``set-id NEW``: given an old ID too (``set-id 1 5``, as other tools take them), it says why NEW is enough."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        numbers = [a for a in args if a.isdigit()]  # (before click's parser takes them from the list)
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:
+            if "unexpected extra argument" not in exc.message or len(numbers) < 2:
+                raise
+            raise click.UsageError(
+                f"set-id takes the new ID only: the one servo on the line is found whatever its ID now "
+                f"(ics35 set-id {numbers[-1]})",
+                ctx,
+            ) from None
+
+
+@click.command(name="set-id", cls=_NewIdOnly)
 @click.argument("new_id", metavar="NEW", type=SERVO_ID)
 @yes_option
 @json_option
