@@ -281,6 +281,15 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
 
 
+def test_a_field_set_twice_or_a_table_asked_as_json_is_refused_before_anything_is_sent(cli: Any) -> None:
+    # `eeprom set 1 speed=60 speed=70` quietly took 70; `eeprom dump 1 --table --json` printed the table.
+    twice = cli("--port", "sim://", "eeprom", "set", "1", "speed=60", "speed=70", "--yes")
+    assert twice.code == ExitCode.USAGE and "speed is given twice (60 and 70)" in twice.err, twice.err
+    both = cli("--port", "sim://", "eeprom", "dump", "1", "--table", "--json")
+    assert both.code == ExitCode.USAGE and "--table" in both.err and "--json" in both.err, both.err
+    assert not both.out
+
+
 def test_set_id_given_an_old_id_too_says_it_takes_the_new_one_only(cli: Any) -> None:
     # `ics35 set-id 1 5` (old and new, as other tools take them): "Got unexpected extra argument (5)", no more.
     result = cli("set-id", "1", "5")

@@ -85,6 +85,8 @@ def parse_assignment(text: str, edit: Edit) -> None:
         elif op == "-":
             edit.clear_flags |= bits
         else:
+            if "flags" in edit.changes and edit.changes["flags"] != bits:
+                raise InvalidArgument("flags is given twice: give it once (flags+=NAME and flags-=NAME add to it)")
             edit.changes["flags"] = bits
         return
     try:
@@ -93,6 +95,8 @@ def parse_assignment(text: str, edit: Edit) -> None:
         raise InvalidArgument(f"{name} needs an integer, got {value.strip()!r}") from None
     if name == "baud_rate":
         number = int(BaudRate.parse(number))
+    if name in edit.changes and edit.changes[name] != number:  # (the last one taken, silently, was a guess)
+        raise InvalidArgument(f"{name} is given twice ({edit.changes[name]} and {number}): give it once")
     edit.changes[name] = number
 
 

@@ -167,6 +167,8 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     In one file: ics35 eeprom dump 1-20 -o robot.json (as ics35 web's Back up all)
     """
     settings = settings_of(ctx)
+    if as_table and (json_default or settings.json_output):
+        raise CliError(ExitCode.USAGE, "--table and --json ask for two outputs: give one (JSON is the default)")
     kind, path = output_target(ids, output, as_table)
     if path is not None and not as_table:  # (an earlier backup there is kept as NAME.bak: room for it first)
         for target in [path / backup_file_name([i]) for i in ids] if kind == "dir" else [path]:  # (one: "several")
