@@ -281,6 +281,14 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
 
 
+def test_sim_given_a_port_says_it_serves_a_line_of_its_own(cli: Any) -> None:
+    # `ics35 --port /tmp/robot-line sim --ids 1` served a new pty and said nothing of the port given, which a
+    # builder meant as where to serve (that is --link).
+    result = cli("--port", "/tmp/robot-line", "sim", "--idz", "1")  # (a usage error: it ends before serving)
+    said = " ".join(result.err.split())
+    assert "--port is not used" in said and "--link" in said, said
+
+
 def test_a_field_set_twice_or_a_table_asked_as_json_is_refused_before_anything_is_sent(cli: Any) -> None:
     # `eeprom set 1 speed=60 speed=70` quietly took 70; `eeprom dump 1 --table --json` printed the table.
     twice = cli("--port", "sim://", "eeprom", "set", "1", "speed=60", "speed=70", "--yes")

@@ -6,6 +6,10 @@ import argparse
 from typing import IO, Any, NoReturn
 
 import click
+from rich.markup import escape
+
+from ._console import say_labelled
+from ._settings import settings_of
 
 
 @click.command(
@@ -25,6 +29,14 @@ def sim(args: tuple[str, ...]) -> int:
     if "-h" in args or "--help" in args:
         click.echo(click_style_help(build_parser("ics35 sim"), "ics35 sim"), nl=False)
         return 0
+    settings = settings_of(click.get_current_context())
+    if not settings.port_defaulted and not any(v.startswith("ICS35_PORT=") for v in settings.from_environment):
+        # (a port given on the command line was meant as where to serve, most likely)
+        say_labelled(
+            "[dim]note:[/dim]",
+            f"[dim]ics35 sim serves a line of its own: --port is not used ({escape(settings.port)}); --link PATH "
+            "names the path it serves at[/dim]",
+        )
     return main(list(args), prog="ics35 sim", parser_class=ClickStyleErrors)
 
 
