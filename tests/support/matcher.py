@@ -65,6 +65,17 @@ class RequestRecord:
 SKIPPED = None
 """A stream outcome never seen: its cycle's frame was skipped (see :meth:`LogMatcher.add_frame`)."""
 
+
+@dataclass(frozen=True, slots=True)
+class SkippedBefore:
+    """The outcomes never seen of the cycles whose frames were skipped before the frame of the cycle the log shows
+    as ``cycle`` (see :meth:`LogMatcher.add_frame`): an ID's entries of earlier cycles are theirs, however many."""
+
+    cycle: int
+
+
+Outcome = tuple[bool, Any, float] | SkippedBefore | None
+
 REALTIME_LAG = 8
 """Transactions the log may trail a request's outcome by when the simulator answers on a real port."""
 
@@ -146,10 +157,19 @@ class LogMatcher:
         self.predictor = WirePredictor(sim.baudrate, sim.echo)
         self.next_seq: int | None = None
         self.first_seq = 0
-        # (seq, verdict, value, fault, tx) of each stream transaction not yet matched with a frame's outcome
-        self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None, bytes]]] = {i: deque() for i in ids}
-        # Per ID, each stream outcome (ok, value, when) in cycle order, or SKIPPED for a cycle whose frame was skipped
-        self.stream_outcomes: dict[int, deque[tuple[bool, Any, float] | None]] = {i: deque() for i in ids}
+        # (seq, verdict, value, fault, tx, the cycle the log shows it in: see drain) of each stream transaction not
+        # yet matched with a frame's outcome
+        self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None, bytes, int]]] = {
+            i: deque() for i in ids
+        }
+        # Per ID, each stream outcome (ok, value, when) in cycle order, or SkippedBefore for cycles whose frames were
+        # skipped
+        self.stream_outcomes: dict[int, deque[Outcome]] = {i: deque() for i in ids}
+        # A cycle sends its IDs in the stream's order (``ids``, the order the stream was given them), so an entry
+        # whose ID comes no later in it than the entry before begins the next cycle.
+        self._slot = {sid: k for k, sid in enumerate(self.stream_outcomes)}
+        self._log_cycle, self._last_slot = 1, -1
+        self._frame_log_cycle = 0  # the log's cycle of the last frame added
         # Per ID, its last stream entry paired with an outcome: (tx, whether the bus took a value; None: skipped)
         self.last_stream: dict[int, tuple[bytes, bool | None]] = {}
         self.last_cycle = 0  # of the frames added
@@ -209,7 +229,11 @@ class LogMatcher:
             elif self.is_stream(t.tx):
                 counts.stream_entries += 1
                 if self.track_stream:
-                    self.stream_entries[sid].append((t.seq, verdict, t.value, t.fault, t.tx))
+                    slot = self._slot.get(sid, -1)
+                    if slot <= self._last_slot:
+                        self._log_cycle += 1
+                    self._last_slot = slot
+                    self.stream_entries[sid].append((t.seq, verdict, t.value, t.fault, t.tx, self._log_cycle))
             else:
                 counts.request_entries += 1
                 self.request_entries[sid].append((t.seq, t.tx, verdict, t.value, t.fault))
@@ -219,10 +243,13 @@ class LogMatcher:
     def add_frame(self, frame: Frame) -> None:
         """The outcomes of ``frame``'s cycle, after those of the cycles before it whose frames were skipped.
 
-        A skipped cycle's outcomes are unknown, but not which log entries are its: a frame is skipped only when
-        the burst path feeds the loop several cycles at once, and a burst runs on past a cycle's end only with
-        every ID in the cycle (none offline or held: see the stream's ``_upcoming``), so every ID has one stream
-        entry in each skipped cycle, as in this frame's: those entries are set aside unchecked.
+        A skipped cycle's outcomes are unknown, but not which log entries are its.  A cycle sends its IDs in the
+        stream's order, so the log shows where each cycle begins (an entry whose ID comes no later than the one
+        before it), and the skipped cycles' entries are an ID's before this frame's cycle, however many: one each,
+        as the burst path runs them (a burst runs on past a cycle's end only with every ID in the cycle), or none
+        for an ID held back after a failure, as a frame skipped on the ordinary path (a loaded machine) may have.
+        Those entries are set aside unchecked.  (The log's cycles and the stream's agree while every cycle sends
+        something: one of IDs all held or offline sends nothing, and is set apart by the checks below.)
 
         An ID offline as the cycle began (in the frame before: a burst never runs with one offline, so never
         across a skipped cycle) was probed, if at all, with a stretch read, which the log shows as a guard read:
@@ -244,7 +271,8 @@ class LogMatcher:
                     f"{sorted(tried)}, not every ID: the skipped cycles' log entries cannot be told apart"
                 )
             for sid in tried:
-                outcomes[sid].extend([SKIPPED] * skipped)
+                outcomes[sid].append(SkippedBefore(self._frame_log_cycle + skipped + 1))
+        self._frame_log_cycle += skipped + 1
         stamps = frame.timestamps
         for sid, position in frame.positions.items():
             outcomes[sid].append((True, position, stamps[sid]))
@@ -329,12 +357,19 @@ class LogMatcher:
         for sid, entries in self.stream_entries.items():
             outcomes = self.stream_outcomes[sid]
             while entries and outcomes:
-                seq, verdict, clean, fault, tx = entries.popleft()
-                outcome = outcomes.popleft()
+                if isinstance(outcomes[0], SkippedBefore):
+                    if entries[0][5] >= outcomes[0].cycle:  # the skipped cycles' entries are all set aside
+                        outcomes.popleft()
+                        continue
+                    outcome: Outcome = SKIPPED
+                else:
+                    outcome = outcomes.popleft()
+                seq, verdict, clean, fault, tx, _cycle = entries.popleft()
                 if outcome is SKIPPED:
                     self.counts.skipped_cycle_entries += 1
                     self.last_stream[sid] = (tx, None)
                     continue
+                assert not isinstance(outcome, SkippedBefore)
                 ok, value, when = outcome
                 self.last_stream[sid] = (tx, ok)
                 self._settle(seq, verdict, clean, fault, ok, value, when)
