@@ -34,6 +34,28 @@ from tests.support.timing import scaled
 TELEMETRY_READS = ("read_current", "read_temperature")
 
 
+def test_monitor_stopped_on_a_line_where_nothing_answers_ends_within_its_search_of_the_other_rates() -> None:
+    # `ics35 monitor 1-4 --free --timeout 1` on a line where nothing answers, Ctrl-C: ten seconds to the prompt.  The
+    # stop waited for two of the stream's cycles to carry a free to no ID (every ID watched: a servo that answers
+    # ICS 3.6's read is never freed), each cycle a whole allowance per offline ID, then the search of the other
+    # rates asked each three times.  Left: that search, one allowance a rate.  (Where nothing answers at any rate the
+    # view starts all the same: servos powering up join it as they answer.)
+    allowance = scaled(0.5)
+    typed: list[float] = []
+
+    def now() -> bool:
+        typed.append(time.monotonic())
+        return True
+
+    args = ["--port", "sim://stop-silent?ids=none", "--timeout", str(allowance), "monitor", "1-4", "--free"]
+    code, shown = typed_on_a_terminal(args, [("answering 0/4", b""), (now, b"\x03")])
+    took = time.monotonic() - typed[0]
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.NO_REPLY and "no servo among 1-4 answered" in screen, screen
+    assert "trying 625000 baud" in screen and "trying 1250000 baud" in screen, screen
+    assert took < 4 * allowance, took  # (two allowances of search; fourteen and more before)
+
+
 @pytest.mark.parametrize("command", [["monitor", "1-4", "--free"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
 def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
     cli: Any, sim_line: Any, command: list[str]
@@ -543,8 +565,8 @@ def test_a_live_view_of_listed_ids_none_of_which_answers_ends_at_once_with_the_r
     command: list[str],
 ) -> None:
     # `ics35 --baud 1250000 monitor 1-3 --free` on a line at 115200: a live table of "off" rows, "answering 0/3",
-    # until Ctrl-C or --seconds, and only then "pass --baud 115200".  Not one asked answering, it says so at once,
-    # with the rate they answer at (or what to check where none), as a command of one servo does.
+    # until Ctrl-C or --seconds, and only then "pass --baud 115200".  Not one asked answering at the line's rate but
+    # at another, it says so at once, as a command of one servo does (here the servos at 625000, the line at 115200).
     port = "sim://listed-elsewhere?ids=1-4&baud=625000"  # (the servos at 625000, the line at the default 115200)
     code, shown = typed_on_a_terminal(["--port", port, "--timeout", "0.05", *command], [], timeout=30)
     screen = " ".join(" ".join(screen_of(shown)).split())

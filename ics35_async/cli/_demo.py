@@ -20,7 +20,6 @@ from ._common import (
     every_id,
     id_ranges,
     ids_named,
-    none_of_them_answered,
     out,
     run,
     seconds_option,
@@ -28,6 +27,7 @@ from ._common import (
     yes_option,
 )
 from ._console import TitleInParts, say
+from ._errors import at_another_rate
 from ._live import (
     AskingIds,
     LiveOptions,
@@ -140,9 +140,10 @@ def demo(
     started: list[LiveState] = []  # (what it left the servos in, should a second Ctrl-C force it out)
     asking = AskingIds(settings, False, reconnect=reconnect, seconds=seconds)
 
-    async def body() -> tuple[LiveState, Telemetry, Recorder] | list[int]:
+    async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus(reconnect=reconnect) as bus:
             silent: list[int] = []
+            searched = False  # (the other rates, none of the IDs answering: see at_another_rate)
             if ids and not asked_all:
                 chosen = ids
                 if not builtin:
@@ -154,10 +155,14 @@ def demo(
                         bus, f"asking {ids_named(chosen)}", lambda: probe_ids(bus, chosen)
                     )
                     if not answered and not garbled:
-                        # Not one of them answered: said at once, the port closed, with the rate they answer at if
-                        # another (a wave of "off" rows for --seconds said it only then).
-                        return list(chosen)
-                    silent = [i for i in chosen if i not in answered and i not in garbled]
+                        # Not one of them answered: at another rate, said at once (a wave of "off" rows for --seconds
+                        # said it only then); at none, streamed as they are (powering up), the run's end says so.
+                        wrong = await at_another_rate(settings, bus, chosen)
+                        if wrong is not None:
+                            raise wrong
+                        searched = True
+                    else:
+                        silent = [i for i in chosen if i not in answered and i not in garbled]
             else:
                 chosen = await asking.ask(
                     bus, "scanning", lambda: discover(bus, settings, shown, False, asked_all=asked_all)
@@ -173,7 +178,7 @@ def demo(
             title = TitleInParts(
                 (f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), frozenset({1})
             )
-            state = LiveState(chosen, title, seconds)
+            state = LiveState(chosen, title, seconds, other_rates_searched=searched)
             started.append(state)
             # The silent IDs start out of the stream's cycle, probed as any servo that stops answering.
             plan = StreamPlan(free=list(chosen), silent=silent)
@@ -181,12 +186,9 @@ def demo(
             return await run_live(settings, bus, chosen, state, options, targets, plan)
 
     try:
-        ran = run(settings, body)
+        state, telemetry, recorder = run(settings, body)
     except CliError as exc:
         raise forced_out(settings, started[0] if started else None, asking.last_words(exc)) from None
-    if isinstance(ran, list):
-        raise none_of_them_answered(settings, ran)
-    state, telemetry, recorder = ran
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     cycles = f"{state.cycle} cycle{'' if state.cycle == 1 else 's'}"
     servos = f"{len(state.ids)} servo{'' if len(state.ids) == 1 else 's'}"

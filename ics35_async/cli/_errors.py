@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Awaitable, Callable, Sequence
 from typing import TYPE_CHECKING
@@ -248,14 +249,38 @@ def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
     rate = _rate_elsewhere(
         settings, lambda open_at, others, on_rate: servo_rates(open_at, ids[0], others, on_rate=on_rate)
     )
-    none = no_servo_among(ids)  # (32 IDs in one short line: 0-31)
     if rate is not None:
-        return CliError(
-            ExitCode.WRONG_BAUD,
-            f"{none} answered at {settings.baud} baud, but servo {ids[0]} does at {rate} baud",
-            f"pass --baud {rate}",
-        )
-    return CliError(ExitCode.NO_REPLY, f"{none} answered", *NO_REPLY_HINTS)
+        return _at_another_rate(settings, ids, rate)
+    return CliError(ExitCode.NO_REPLY, f"{no_servo_among(ids)} answered", *NO_REPLY_HINTS)
+
+
+async def at_another_rate(settings: Settings, bus: Bus, ids: Sequence[int]) -> CliError | None:
+    """Where none of ``ids`` answered as a live view asked them: the error naming the rate the first of them
+    answers at when it is another (a wrong --baud, said at once rather than after a view of "off" rows), else
+    None (they may be powering up: the view starts, and takes them in as they answer).  ``bus`` is reopened at
+    the other rates for the search, and left at its own."""
+    from ..policies import other_bauds, reopening, servo_rates
+
+    if not carries_line_settings(settings.port):  # (a link blind to the rate: every rate is the far end's one)
+        return None
+    found: tuple[int, ...] = ()
+    try:
+        with contextlib.suppress(errors.ReplyError):  # (advice only: a search that fails leaves the view to run)
+            others = other_bauds([settings.baud])
+            found = await servo_rates(reopening(bus), ids[0], others, on_rate=trying_rates(settings))
+    finally:
+        if int(bus.baudrate) != settings.baud:
+            await bus.reopen(baudrate=settings.baud)
+    return _at_another_rate(settings, ids, found[0]) if found else None
+
+
+def _at_another_rate(settings: Settings, ids: Sequence[int], rate: int) -> CliError:
+    none = no_servo_among(ids)  # (32 IDs in one short line: 0-31)
+    return CliError(
+        ExitCode.WRONG_BAUD,
+        f"{none} answered at {settings.baud} baud, but servo {ids[0]} does at {rate} baud",
+        f"pass --baud {rate}",
+    )
 
 
 def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:

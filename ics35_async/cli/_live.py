@@ -27,6 +27,7 @@ from ..stream import Stream, StreamOptions
 from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
 from ._common import (
+    NO_REPLY_HINTS,
     CliError,
     ExitCode,
     NobodyAnswered,
@@ -35,6 +36,7 @@ from ._common import (
     emit_json,
     id_ranges,
     ids_text,
+    no_servo_among,
     none_of_them_answered,
     out,
 )
@@ -433,6 +435,8 @@ def final_report(
     # Stopped by Ctrl-C before any cycle ended, nothing is known of the servos: no error for that.
     asked = state.cycle > 0 or not state.stopped_by_signal
     if asked and not state.answered_ever:
+        if state.other_rates_searched:
+            raise CliError(ExitCode.NO_REPLY, f"{no_servo_among(state.ids)} answered, at any rate", *NO_REPLY_HINTS)
         raise none_of_them_answered(settings, state.ids)
 
 

@@ -45,6 +45,9 @@ class LiveState:
     rate_avg: float = 0.0
     rate_asked: float | None = None  # --rate (None: as fast as the line goes)
     answered_ever: set[int] = field(default_factory=set)
+    # The other rates were searched as the IDs were asked, none answering (see _errors.at_another_rate): not again
+    # at the end of a run in which none ever answered.
+    other_rates_searched: bool = False
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
     ended: bool = False  # the stream's frames are over (the time up, a stop signal, an error)

@@ -15,12 +15,12 @@ from ._common import (
     ids_named,
     json_option,
     no_servo_among,
-    none_of_them_answered,
     run,
     seconds_option,
     settings_of,
 )
 from ._console import TitleInParts, say
+from ._errors import at_another_rate
 from ._live import AskingIds, LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -88,7 +88,7 @@ def monitor(
 
     asking = AskingIds(settings, as_json, reconnect=reconnect, seconds=seconds)
 
-    async def body() -> tuple[LiveState, Telemetry, Recorder] | list[int]:
+    async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus(reconnect=reconnect) as bus:
             if ids and not every_id(ids):
                 chosen = ids
@@ -107,9 +107,12 @@ def monitor(
                 lambda: policies.plan_position_stream(bus, chosen, free_ics35=free_servos),
             )
             if set(chosen) <= set(plan.silent):
-                # Not one of them answered: said at once, the port closed, with the rate they answer at if another
-                # (a live table of "off" rows until Ctrl-C said it only then).
-                return list(chosen)
+                # Not one of them answered: at another rate, said at once (a live table of "off" rows until Ctrl-C
+                # said it only then); at none, the view starts and takes them in as they answer (powering up).
+                wrong = await at_another_rate(settings, bus, chosen)
+                if wrong is not None:
+                    raise wrong
+            searched = set(chosen) <= set(plan.silent)
             freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
@@ -128,7 +131,7 @@ def monitor(
             how = "ICS 3.5 servos free" if freed else "torque left alone"
             # (The command's name a part of its own, as demo's: a port's name too wide is cut at its start, not it.)
             title = TitleInParts(("monitor", f"{escape(shown)} at {settings.baud} baud", f"({how})"), frozenset({1}))
-            state = LiveState(chosen, title, seconds)
+            state = LiveState(chosen, title, seconds, other_rates_searched=searched)
             state.no_position = missing
             if missing and not as_json:
                 for sid, why in missing.items():
@@ -136,12 +139,9 @@ def monitor(
             return await run_live(settings, bus, plan.streamed, state, options, None, plan)
 
     try:
-        ran = run(settings, body)
+        state, telemetry, recorder = run(settings, body)
     except CliError as exc:
         raise asking.last_words(exc) from None
-    if isinstance(ran, list):
-        raise none_of_them_answered(settings, ran)
-    state, telemetry, recorder = ran
     final_report(settings, state, telemetry, recorder, options, f"ics35 monitor: {shown}")
     return 0
 
