@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from collections.abc import Awaitable, Callable, Sequence
 from typing import TYPE_CHECKING
@@ -33,7 +34,12 @@ def lost_port_hints(port: str) -> list[str]:
 
     if url_scheme(port) == "sim":
         return []
-    if is_pseudo_terminal(port):
+    # (a link outside /dev that is gone: `ics35 sim` and socat remove theirs as they stop; an adapter's name is
+    # under /dev, and Windows names ports, COM3, that are no paths)
+    gone_link = (
+        sys.platform != "win32" and not is_url(port) and not port.startswith("/dev/") and not os.path.lexists(port)
+    )
+    if is_pseudo_terminal(port) or gone_link:
         return ["a pseudo-terminal: is the simulator or bridge that served it (ics35 sim, socat) still running?"]
     return ["is the USB adapter still plugged in?"]
 
