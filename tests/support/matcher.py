@@ -8,7 +8,8 @@ simulator logs them, so:
   holds one outcome per ID it tried: the n-th stream outcome of ID ``i``
   belongs to the n-th stream log entry addressed to ``i``; a frame the consumer never took (skipped: on the
   burst path a loop held up while the executor ran several cycles is fed them at once, and takes the last
-  frame) has its cycle's entries set aside unchecked, one per ID (see :meth:`LogMatcher.add_frame`); an
+  frame; a loaded machine's slow consumer too) has its cycle's entries set aside unchecked, told by the
+  stream's order of IDs, none for an ID held back there (see :meth:`LogMatcher.add_frame`); an
   offline ID's probe is a stretch read (a guard read's bytes), so a frame's failed probe has no stream entry,
   nor has a failed ID the frame says was sent nothing (``not_sent``: held back after a failure);
 * a request is the only one in flight for its servo ID (the workers take an
@@ -63,7 +64,7 @@ class RequestRecord:
 
 
 SKIPPED = None
-"""A stream outcome never seen: its cycle's frame was skipped (see :meth:`LogMatcher.add_frame`)."""
+"""An entry set aside in :meth:`LogMatcher.match`: its cycle's frame was skipped (see :class:`SkippedBefore`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -249,7 +250,10 @@ class LogMatcher:
         as the burst path runs them (a burst runs on past a cycle's end only with every ID in the cycle), or none
         for an ID held back after a failure, as a frame skipped on the ordinary path (a loaded machine) may have.
         Those entries are set aside unchecked.  (The log's cycles and the stream's agree while every cycle sends
-        something: one of IDs all held or offline sends nothing, and is set apart by the checks below.)
+        something and no two run into each other: a frame taken whose cycle sent nothing, every ID held or
+        offline, is counted as such; a skipped one that sent nothing, or two cycles of which the first sent only
+        IDs later in the order than every one the second sent, would put them apart.  With the soak's 32 IDs
+        and a few failures a cycle neither has been seen.)
 
         An ID offline as the cycle began (in the frame before: a burst never runs with one offline, so never
         across a skipped cycle) was probed, if at all, with a stretch read, which the log shows as a guard read:
@@ -272,7 +276,9 @@ class LogMatcher:
                 )
             for sid in tried:
                 outcomes[sid].append(SkippedBefore(self._frame_log_cycle + skipped + 1))
-        self._frame_log_cycle += skipped + 1
+        probing = self.offline  # (the IDs offline in the frame before: their probes are no stream entries)
+        sent = bool(frame.positions) or any(s not in frame.not_sent and s not in probing for s in frame.failed)
+        self._frame_log_cycle += skipped + (1 if sent else 0)
         stamps = frame.timestamps
         for sid, position in frame.positions.items():
             outcomes[sid].append((True, position, stamps[sid]))
