@@ -9,6 +9,7 @@ what a safety trip does).
 from __future__ import annotations
 
 import os
+import sys
 from typing import Any, TypeVar
 
 import click
@@ -114,8 +115,10 @@ def show_robot(path: str, description: RobotDescription) -> None:
     for line in lines.values():
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
         ids = ids_named(joint.id for joint in description.joints_on(line.name))
-        # (a device path: whether it is there now, so that a mistyped one is seen before play; no port is opened)
-        absent = " (not there now)" if not url_scheme(line.port) and not os.path.exists(line.port) else ""
+        # (a device path: whether it is there now, so that a mistyped one is seen before play; no port is opened.
+        # Not on Windows, whose ports, COM3, are no paths.)
+        device = not url_scheme(line.port) and sys.platform != "win32"
+        absent = " (not there now)" if device and not os.path.exists(line.port) else ""
         say(f"  line {escape(line.name)}: {escape(line.port)}{absent} at {line.baudrate} baud, {rate}, {ids}", to=out)
     # (no value wraps: a terminal too narrow leaves the line out, then wraps the names: see FittedTable)
     table = Table(box=None, pad_edge=False)

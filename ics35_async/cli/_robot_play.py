@@ -172,9 +172,9 @@ def play(
         nonlocal passes, played, silent, rejoined, untargeted, found
         options = robot_options(settings)
         check_start_pose(description, start_pose, named="--start-pose")  # (the whole robot: a typo names every joint)
-        asked = None if yes else ask_before_freeing_to_read(description, robot_file)
+        confirm_free = None if yes else ask_before_freeing_to_read(description, robot_file)
         async with opening.open(
-            moved, on_close=on_stop, start_pose=start_pose, confirm_start_free=asked, **options
+            moved, on_close=on_stop, start_pose=start_pose, confirm_start_free=confirm_free, **options
         ) as robot:
             show_warnings(robot)
             if untouched:

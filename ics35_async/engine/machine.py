@@ -942,10 +942,11 @@ class LineEngine:
         if self._settling:  # nothing more came: the reply is this command's own (see _settle)
             return self._finish(now)
         if self._short and len(self._buf) < self._echo_len:
-            # A short wait (a stream transaction's, a read's in its slack, a probe's) is for silence after the
-            # echo: a servo that does not answer still echoes.  With the echo not yet round, the host or the link
-            # is late (an FTDI adapter's latency timer holds echo and reply together), and giving up would take a
-            # servo there for absent and fail whatever its bytes land in: wait the full allowance.
+            # A short wait (a stream transaction's, a read's in its slack, a probe's, a command's to a servo found
+            # silent) is for silence after the echo: a servo that does not answer still echoes.  With the echo not
+            # yet round, the host or the link is late (an FTDI adapter's latency timer holds echo and reply
+            # together), and giving up would take a servo there for absent and fail whatever its bytes land in:
+            # wait the full allowance.
             self._short = False
             full = self._full_deadline()
             if now < full:

@@ -88,9 +88,9 @@ RateCallback = Callable[[int], object]  # called with the baud rate a search of 
 def trying_rate(line_baud: int, baud: int, previous: int | None = None) -> str:
     """What a search of the other rates (``on_rate``) tells a person as it tries ``baud``, nothing having answered
     at the line's rate ``line_baud``: each rate may cost a whole reply allowance, so the wait is said.  ``previous``:
-    the other rate tried just before, if any.  The search asks every rate, a rate that answered included, so a
-    later one is said as tried "too", not after "no answer" (a line saying the line's rate again would read as if
-    the rate before had been skipped)."""
+    the other rate tried just before, if any (only whether there was one is said).  The search asks every rate, a
+    rate that answered included, so a later one is said as tried "too", not after "no answer" (a line saying the
+    line's rate again would read as if the rate before had been skipped)."""
     if previous is None:
         return f"no answer at {line_baud} baud: trying {baud} baud ..."
     return f"trying {baud} baud too ..."

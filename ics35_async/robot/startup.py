@@ -83,8 +83,9 @@ class RobotOptions(BusOptions, total=False):
     with [`UnsafeOperation`][ics35_async.errors.UnsafeOperation], no joint freed or moved; an exception it raises
     ends it the same way, raised as it is.  Not called when no joint starts free (default ``None``: not asked).
     For a program that asks a person first, as ``ics35 play`` does on a serial line: a robot standing on ICS 3.5
-    servos falls as they are freed.  (A joint whose servo did not answer starts offline, and free once it
-    answers: the open's warnings name it.)"""
+    servos falls as they are freed.  A plain function runs in the event loop, which waits for it (the lines are
+    open, nothing streams yet); one that waits for something else is a coroutine function.  (A joint whose servo
+    did not answer starts offline, and free once it answers: the open's warnings name it.)"""
     start_free: bool
     """Every joint not in ``start_pose`` starts free, ICS 3.6 ones too, read by the free command (which answers
     with the position on both protocols), and the open asks no servo its protocol (default ``False``).  For a

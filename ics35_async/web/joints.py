@@ -279,7 +279,8 @@ class RobotSession:
 
     def _stopped_by(self, lines: list[str]) -> str:
         ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
-        return f"the robot stopped: line {ports} lost its port"
+        one = len(lines) == 1
+        return f"the robot stopped: {'line' if one else 'lines'} {ports} lost {'its port' if one else 'their ports'}"
 
     def _reconnect_ready(self) -> str | None:
         """Words for the robot a lost line stopped once every line it lost is back (they reopen by themselves):

@@ -746,6 +746,7 @@ async function jog(position) {
       targetSent(null);
       $("#jog-position").textContent = e.reply.position;
       $("#motion-switch").checked = false; setMotion(false);
+      state.motionFor = null;
     } else if (e.status === 400 || e.status === 409) {  // refused, nothing sent: the last target sent stands
       const sent = state.jogSent ?? { position: null, uncertain: false };
       if (latest) showTarget(sent.position, sent.uncertain);
