@@ -1380,6 +1380,7 @@ def test_a_jog_that_finds_its_servo_off_its_way_lets_it_go_at_once_and_switches_
     error = thrown.json()["error"]
     assert "9000" in error and "freed" in error and "enable motion" in error, error
     assert thrown.json()["freed"] is True and abs(thrown.json()["position"] - 9000) < 30, thrown.text  # (for the page)
+    assert thrown.json()["kind"] == "UnsafeOperation"
     assert servo.free and abs(servo.position - 9000) < 30, (servo.free, servo.position)  # (let go at once)
     assert "restarted" in client.get("/api/status").json()["motion_off"]["1"]
     refused = post(client, "/api/servo/1/move", {"position": 7800})

@@ -238,30 +238,28 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             kept = write_backup(target, doc)
             also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
             say(f"EEPROM of servo {i} saved to {escape(str(target))}{also}")
+    done = f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"  # (the hints after a failure)
     if read.lost is not None:
         failure = read.lost
         rest = ",".join(str(i) for i in read.unread)
         # (a file of several: the rest into another, the same name would put this one aside as .bak)
         into = str(path.parent / backup_file_name(read.unread)) if kind == "several" and path else str(output)
         again = ["eeprom", "dump", rest, *(["--table"] if as_table else ["-o", into])]
-        failure.hints.append(
-            f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}; when the line is back, "
-            f"read the rest: {settings.command_line(*again)}"
-        )
+        failure.hints.append(f"{done}; when the line is back, read the rest: {settings.command_line(*again)}")
         raise failure
     unsaved = sorted([*read.garbled, *read.failed])
     if unsaved:  # servos that are there, and are not in the backup: not a success for a script to go on from
         raise CliError(
             ExitCode.COMMUNICATION,
             f"servo(s) at ID(s) {ids_text(unsaved)} answered but could not be saved (see above)",
-            *([f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"] if images else []),
+            *([done] if images else []),
         )
     if missing and len(ids) > 1 and not every_id(ids):
         # IDs listed are servos expected: a backup missing some is not a success for a script to go on from.
         raise CliError(
             ExitCode.NO_REPLY,
             f"no answer from ID(s) {ids_text(missing)} at {settings.baud} baud: not saved",
-            *([f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"] if images else []),
+            *([done] if images else []),
             f"a servo at another rate does not answer at this one ({settings.command_line('scan')} finds every "
             f"rate); {settings.command_line('eeprom', 'dump', 'all')} saves whichever servos answer",
         )

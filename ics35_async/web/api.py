@@ -279,7 +279,7 @@ async def move(request: Request, session: LineSession) -> Any:
     try:
         return {"position": await session.move(servo_id(request), int_of(await body(request), "position"))}
     except JogFreedServo as exc:  # (the page shows the servo free where it stands, not at its last target)
-        return error_response(exc, freed=True, position=exc.position)
+        return error_response(exc, kind="UnsafeOperation", freed=True, position=exc.position)  # (its kind as ever)
 
 
 # --------------------------------------------------------------------------- ID, many, live, traffic
