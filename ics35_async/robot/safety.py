@@ -121,6 +121,7 @@ class SafetyWatch:
         self.telemetry: dict[str, JointTelemetry] = {j.name: JointTelemetry() for j in self.joints}
         self.rounds: dict[str, int] = dict.fromkeys(self.buses, 0)
         self._said_blind: set[str] = set()  # the joints whose stretch of failed reads was said (see _say_blind)
+        self._blind: set[str] = set()  # those whose reads failed into a stretch, said next round if still answering
 
     def forget(self, joints: Iterable[str]) -> None:
         """Drop the readings of ``joints``, whose servo went offline or whose line lost its port: it may come back
@@ -169,15 +170,20 @@ class SafetyWatch:
 
     async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo, position_failed: bool) -> None:
         """Read ``joint``'s temperature and current, and trip or clear its stop on them; ``position_failed``: its
-        position did not answer in the frame this round follows."""
+        position did not answer in the frame this round follows (a cycle run after the round before's reads)."""
         seen = self.telemetry[joint.name]
-        reading = await self._reading(joint, servo, seen)
-        if reading is None:
-            if seen.stale and not position_failed and joint.name not in self._said_blind:
-                # (once a stretch; not while its position fails too: the servo is gone, which the offline rule
-                # says, not a servo that still answers its position commands)
+        if joint.name in self._blind:
+            # Its reads failed into a stretch last round: said now only if its position answered in a cycle run
+            # since (the frame that round followed may be older than the servo's going); failing too, the servo
+            # is gone, which the offline rule says, not a servo that still answers its position commands.
+            self._blind.discard(joint.name)
+            if not position_failed:
                 self._said_blind.add(joint.name)
                 self._say_blind(joint)
+        reading = await self._reading(joint, servo, seen)
+        if reading is None:
+            if seen.stale and joint.name not in self._said_blind:
+                self._blind.add(joint.name)  # (once a stretch: see above)
             return
         crossed = self._crossings(joint, *reading)
         confirmed: set[str] | None = None  # (the limits a second reading must cross too to trip)
@@ -196,6 +202,7 @@ class SafetyWatch:
         seen.reads += 1
         seen.failed_in_row = 0
         self._said_blind.discard(joint.name)
+        self._blind.discard(joint.name)
         seen.temperature_c, seen.current = reading
         self.check(robot, joint, seen, confirmed)
 
