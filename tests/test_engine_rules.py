@@ -691,6 +691,29 @@ def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
 
 
+def test_a_request_outranked_and_back_at_the_head_starts_its_count_of_slots_again() -> None:
+    # The engine's hypothesis model found it: a request passed over once beside a late stream is outranked by an
+    # URGENT one, which is cancelled before it goes; back at the head, the first kept its count and went at the
+    # next overdue slot, ahead of the stream, with no stream transaction since it came to the head again.
+    wire, _ = paced_line(period=0.0002)
+    wire.run_for(0.005)
+    first, urgent = Recorded(read(7)), Recorded(read(8), priority=Priority.URGENT)
+    marks: list[int] = []
+
+    def outranked_after_one_pass() -> None:
+        if not marks:  # the stream's write made after passing ``first`` over once
+            marks.append(len(wire.writes) + 1)
+            wire.submit(urgent)
+            urgent.cancel()
+
+    wire.submit(first)
+    wire.on_write = outranked_after_one_pass
+    wire.run_for(0.05)
+    assert urgent.state == "cancelled" and first.state == "done"
+    kinds = stream_or_request(wire.sent()[marks[0] :])
+    assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
+
+
 def test_a_request_does_not_inherit_the_slots_another_was_passed_over_in() -> None:
     # A request passed over once beside a late stream is cancelled; the next one is passed over in
     # slots of its own: one of the stream's transactions goes before it.

@@ -300,6 +300,11 @@ class LineEngine:
         state = self.state
         if state is IDLE or state is BUSY or state is QUIET or state is OFFLINE:
             self.queue.push(request)
+            counted = self._passed_over_head
+            if counted is not None and request.priority < counted.priority:
+                # It outranks the head whose passed-over slots were counted: that one comes to the head again
+                # later (this one gone or cancelled) and starts from none, as any request that comes to the head.
+                self._passed_over_head = None
             return self._start_next(now) if state is IDLE else None
         if state is LOST:
             raise PortLost("the port is lost; reconnecting")
