@@ -298,6 +298,14 @@ def test_a_field_set_twice_or_a_table_asked_as_json_is_refused_before_anything_i
     assert not both.out
 
 
+def test_set_given_a_field_assignment_or_the_position_points_at_the_command_that_takes_it(cli: Any) -> None:
+    # `ics35 set 1 speed=60` (eeprom set's form) and `ics35 set 1 position 8000` got only the list of parameters.
+    said = " ".join(cli("set", "1", "speed=60").err.split())
+    assert "ics35 set 1 speed 60" in said and "ics35 eeprom set 1 speed=60" in said, said
+    said = " ".join(cli("set", "1", "position", "8000").err.split())
+    assert "ics35 move 1 POSITION" in said, said
+
+
 def test_set_id_given_an_old_id_too_says_it_takes_the_new_one_only(cli: Any) -> None:
     # `ics35 set-id 1 5` (old and new, as other tools take them): "Got unexpected extra argument (5)", no more.
     result = cli("set-id", "1", "5")

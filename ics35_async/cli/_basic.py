@@ -446,9 +446,30 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
     return 0
 
 
+class _WriteParamChoice(click.Choice):  # type: ignore[type-arg]
+    """``set``'s parameters; given ``eeprom set``'s form (``speed=60``) or the position, it names the command that
+    takes it."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        servo = ctx.params.get("servo_id", "ID") if ctx is not None else "ID"
+        if isinstance(value, str) and "=" in value:
+            name, _, number = value.partition("=")
+            self.fail(
+                f"{value!r}: set takes PARAM VALUE, into RAM (ics35 set {servo} {name} {number}); a field=value goes "
+                f"into the EEPROM with ics35 eeprom set {servo} {value}",
+                param,
+                ctx,
+            )
+        if isinstance(value, str) and value.lower() in _ReadParamChoice.POSITION_WORDS:
+            self.fail(
+                f"{value!r} is not a parameter: a servo is sent a position with ics35 move {servo} POSITION", param, ctx
+            )
+        return super().convert(value, param, ctx)
+
+
 @click.command(name="set", cls=SignedValuesCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
-@click.argument("param", metavar="PARAM", type=click.Choice(list(WRITE_PARAMS), case_sensitive=False))
+@click.argument("param", metavar="PARAM", type=_WriteParamChoice(list(WRITE_PARAMS), case_sensitive=False))
 @click.argument("value", metavar="VALUE", type=int)
 @json_option
 @click.pass_context
