@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -691,46 +692,49 @@ def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
 
 
+def passed_over_once_then(then: Callable[[Wire, Recorded], None]) -> tuple[Recorded, str]:
+    """A request passed over once beside a late stream, ``then(wire, it)`` done at the stream's write made after
+    that pass, and the line run on: the request, and what went on the wire from that write on (S stream, R request)."""
+    wire, _ = paced_line(period=0.0002)
+    wire.run_for(0.005)
+    first = Recorded(read(7))
+    marks: list[int] = []
+
+    def after_one_pass() -> None:
+        if not marks:
+            marks.append(len(wire.writes) + 1)
+            then(wire, first)
+
+    wire.submit(first)
+    wire.on_write = after_one_pass
+    wire.run_for(0.05)
+    return first, stream_or_request(wire.sent()[marks[0] :])
+
+
 def test_a_request_outranked_and_back_at_the_head_starts_its_count_of_slots_again() -> None:
     # The engine's hypothesis model found it: a request passed over once beside a late stream is outranked by an
     # URGENT one, which is cancelled before it goes; back at the head, the first kept its count and went at the
     # next overdue slot, ahead of the stream, with no stream transaction since it came to the head again.
-    wire, _ = paced_line(period=0.0002)
-    wire.run_for(0.005)
-    first, urgent = Recorded(read(7)), Recorded(read(8), priority=Priority.URGENT)
-    marks: list[int] = []
+    urgent = Recorded(read(8), priority=Priority.URGENT)
 
-    def outranked_after_one_pass() -> None:
-        if not marks:  # the stream's write made after passing ``first`` over once
-            marks.append(len(wire.writes) + 1)
-            wire.submit(urgent)
-            urgent.cancel()
+    def outranked(wire: Wire, first: Recorded) -> None:
+        wire.submit(urgent)
+        urgent.cancel()
 
-    wire.submit(first)
-    wire.on_write = outranked_after_one_pass
-    wire.run_for(0.05)
+    first, kinds = passed_over_once_then(outranked)
     assert urgent.state == "cancelled" and first.state == "done"
-    kinds = stream_or_request(wire.sent()[marks[0] :])
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
 
 
 def test_a_request_does_not_inherit_the_slots_another_was_passed_over_in() -> None:
     # A request passed over once beside a late stream is cancelled; the next one is passed over in
     # slots of its own: one of the stream's transactions goes before it.
-    wire, _ = paced_line(period=0.0002)
-    wire.run_for(0.005)
-    first, second = Recorded(read(7)), Recorded(read(8))
-    marks: list[int] = []
+    second = Recorded(read(8))
 
-    def cancel_after_one_pass() -> None:
-        if not marks:  # the stream's write made after passing ``first`` over once
-            marks.append(len(wire.writes) + 1)
-            first.cancel()
-            wire.submit(second)
+    def cancelled(wire: Wire, first: Recorded) -> None:
+        first.cancel()
+        wire.submit(second)
 
-    wire.submit(first)
-    wire.on_write = cancel_after_one_pass
-    wire.run_for(0.05)
+    first, kinds = passed_over_once_then(cancelled)
     assert first.state == "cancelled" and second.state == "done"
-    kinds = stream_or_request(wire.sent()[marks[0] :])
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]

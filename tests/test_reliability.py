@@ -105,23 +105,36 @@ def test_the_matcher_keeps_a_misattribution_among_its_examples_after_many_lesser
     assert "call for ReplyTimeout" in examples[0] and len(examples) == 11, examples
 
 
+def two_servos_matched(
+    cycles: list[tuple[int, tuple[int, ...]]], frames: list[tuple[int, int, slice]]
+) -> tuple[VirtualLine, LogMatcher]:
+    """Servos 1 and 2 sent the position commands of ``cycles`` (cycle, the IDs sent: 1000 * (4 + ID) + 10 * cycle),
+    and a matcher of them given ``frames`` (cycle, cycles skipped before it, the log entries it reports) and run
+    to its end: the line and the matcher."""
+    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
+    matcher = LogMatcher(sim, is_stream_tx, [1, 2])
+    for cycle, ids in cycles:
+        run_line(sim, [protocol.position_tx(i, 1000 * (4 + i) + 10 * cycle) for i in ids])
+    answered = [(t.servo_id, t.value) for t in sim.log]
+    matcher.drain()
+    for cycle, skipped, entries in frames:
+        positions = dict(answered[entries])
+        stamps = dict.fromkeys(positions, 0.0)
+        matcher.add_frame(Frame(cycle, positions, stamps, frozenset(), frozenset(), 0.0, 0.0, skipped=skipped))
+    matcher.match(final=True)
+    return sim, matcher
+
+
 def test_the_matcher_sets_aside_a_skipped_cycle_that_held_an_id_back() -> None:
     # Under two CPU burners the chaos test's loop skipped a frame on the ordinary path right after IDs 1 and 2
     # failed: held back in the skipped cycle, they had no entry there, and a matcher counting one entry an ID a
     # skipped cycle paired ID 2's next outcomes one command late ("bus returned 4436, the bytes ... call for
     # 4440": a misattribution that was not).  A cycle's entries go in the stream's order of IDs, so the log tells
     # where each cycle begins: the skipped cycles' entries are those before the frame's own cycle.
-    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
-    matcher = LogMatcher(sim, is_stream_tx, [1, 2])
-    for cycle, ids in ((1, (1, 2)), (2, (1,)), (3, (1, 2))):  # (cycle 2: ID 2 held back after a failure)
-        run_line(sim, [protocol.position_tx(i, 1000 * (4 + i) + 10 * cycle) for i in ids])
-    answered = [(t.servo_id, t.value) for t in sim.log]
-    matcher.drain()
-    for cycle, skipped, entries in ((1, 0, answered[0:2]), (3, 1, answered[3:5])):
-        positions = dict(entries)
-        stamps = dict.fromkeys(positions, 0.0)
-        matcher.add_frame(Frame(cycle, positions, stamps, frozenset(), frozenset(), 0.0, 0.0, skipped=skipped))
-    matcher.match(final=True)
+    _, matcher = two_servos_matched(
+        [(1, (1, 2)), (2, (1,)), (3, (1, 2))],  # (cycle 2: ID 2 held back after a failure)
+        [(1, 0, slice(0, 2)), (3, 1, slice(3, 5))],
+    )
     assert matcher.counts.misattributed == 0, matcher.counts.examples
     assert matcher.counts.accepted == 4 and matcher.counts.skipped_cycle_entries == 1
     assert not any(matcher.stream_entries.values())
@@ -130,17 +143,9 @@ def test_the_matcher_sets_aside_a_skipped_cycle_that_held_an_id_back() -> None:
 def test_the_matcher_sets_aside_the_entries_of_a_cycle_whose_frame_was_skipped() -> None:
     # Three cycles on the line, the second one's frame skipped (on the burst path a held-up loop is fed several
     # cycles at once and takes the last frame): the third frame's outcomes are the third cycle's entries.
-    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
-    matcher = LogMatcher(sim, is_stream_tx, [1, 2])
-    for cycle in (1, 2, 3):
-        run_line(sim, [protocol.position_tx(1, 5000 + 10 * cycle), protocol.position_tx(2, 6000 + 10 * cycle)])
-    answered = [(t.servo_id, t.value) for t in sim.log]
-    matcher.drain()
-    for cycle, skipped in ((1, 0), (3, 1)):
-        positions = dict(answered[2 * cycle - 2 : 2 * cycle])
-        stamps = dict.fromkeys(positions, 0.0)
-        matcher.add_frame(Frame(cycle, positions, stamps, frozenset(), frozenset(), 0.0, 0.0, skipped=skipped))
-    matcher.match(final=True)
+    sim, matcher = two_servos_matched(
+        [(1, (1, 2)), (2, (1, 2)), (3, (1, 2))], [(1, 0, slice(0, 2)), (3, 1, slice(4, 6))]
+    )
     assert matcher.counts.misattributed == 0, matcher.counts.examples
     assert matcher.counts.accepted == 4 and matcher.counts.skipped_cycle_entries == 2
     assert not any(matcher.stream_entries.values())
