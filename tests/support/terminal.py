@@ -80,8 +80,10 @@ class TerminalOutput:
     def text(self) -> str:
         return self.written.decode(errors="replace")
 
-    def shows(self, text: str) -> Callable[[], bool]:
-        """A check that ``text`` has been written (for :meth:`read_until`)."""
+    def shows(self, text: str | re.Pattern[str]) -> Callable[[], bool]:
+        """A check that ``text`` has been written, or something ``text`` matches (for :meth:`read_until`)."""
+        if isinstance(text, re.Pattern):
+            return lambda: text.search(self.text) is not None
         return lambda: text in self.text
 
     def read_until(self, done: Callable[[], bool], limit: float) -> None:
@@ -112,7 +114,7 @@ class Unread:
 
 def typed_on_a_terminal(
     args: list[str],
-    keys: list[tuple[str | float | Unread | Callable[[], bool], bytes]],
+    keys: list[tuple[str | re.Pattern[str] | float | Unread | Callable[[], bool], bytes]],
     *,
     timeout: float = 60,
     stdout: Path | None = None,
@@ -123,7 +125,7 @@ def typed_on_a_terminal(
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` (``python -c script ARGS`` with ``script``) with a pty as its controlling
     terminal (stdin, stdout and stderr), as
-    a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
+    a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase, or a pattern) is on the screen, or for
     ``when`` seconds (an :class:`Unread`'s reading nothing), or until ``when()`` is true (e.g. a line in the
     ``stdout`` file), then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
     ``stdout``: a file for stdout instead (``ics35 ... > FILE``); ``columns`` and ``rows``: the terminal's width and
@@ -156,10 +158,10 @@ def typed_on_a_terminal(
     screen = TerminalOutput(master)
     try:
         for when, key in keys:
-            if isinstance(when, str) or callable(when):
+            if isinstance(when, (str, re.Pattern)) or callable(when):
                 # (A phrase never shown fails here, not after typing the key at the end of the wait: the test then
                 # judged whatever followed, and a misspelt phrase cost the whole timeout.)
-                done = screen.shows(when) if isinstance(when, str) else when
+                done = when if callable(when) else screen.shows(when)
                 screen.read_until(done, timeout)
                 assert done(), f"not shown within {timeout} s: {when!r}; the screen:\n" + "\n".join(
                     screen_of(screen.text)
