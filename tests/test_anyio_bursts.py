@@ -75,8 +75,15 @@ async def test_a_stream_runs_in_bursts_beside_requests_that_get_their_own_replie
                 async with anyio.create_task_group() as group:
                     group.start_soon(frames)
                     group.start_soon(reads)
-            # (A read arriving mid-burst stops it at its next boundary: bursts beside reads are short.)
-            assert beside[0] > 10 and runner.transactions >= runner.bursts, (beside, runner.bursts, runner.transactions)
+            # (A read arriving mid-burst stops it at its next boundary: bursts beside reads are short.)  One burst
+            # starts in each pause between reads while the line is in step.  After a transaction that failed (on a
+            # loaded machine, a reply later than its wait) the ordinary path runs until its late reply could no
+            # longer come, half a second here, and a late reply that came teaches the link an allowance that bursts
+            # wait out as well: the reads take about that long, so one early fault can leave no burst beside them.
+            failed = bus.stats.total.transactions - bus.stats.total.ok
+            said = (beside, runner.bursts, runner.transactions, bus.stats.total, bus.describe()["link_extra_s"])
+            assert beside[0] > 10 or failed, said
+            assert runner.transactions >= runner.bursts, said
             # From the first frame with every servo at its target on, every frame is so (a reply misattributed
             # would show another position); on a loaded machine a transaction failed in the first cycles put that
             # first frame past the fifth once (a servo sits out until its late reply could no longer come).
