@@ -555,7 +555,7 @@ def arm_robot_page(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
         '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n' + safety
     )
-    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+    with web_server_page(browser, line, ["--robot", str(robot), "--yes"]) as p:
         p.click("#robot-link")
         yield line, p
 
@@ -690,6 +690,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
     # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
     # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).
     line = PtyLine((1, 2), ics36=(1,))
+    line.sim.servo(2).command_position(7000)  # (bearing the arm as the server starts)
     robot = tmp_path / "arm.toml"
     robot.write_text(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
@@ -697,7 +698,18 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
     )
     with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
+        # The server's start freed nothing: the Robot page asks before it frees elbow to read it (ICS 3.5).
+        expect(p.locator("#robot-start-free-question")).to_contain_text("Joint elbow speaks ICS 3.5")
+        expect(p.locator("#robot-start-free-question")).to_contain_text("--start-pose stating where it stands")
+        expect(p.locator("#robot-error")).to_contain_text("not opened, nothing freed")
+        expect(p.locator('tr[data-joint="elbow"] .target')).to_have_text("-")  # (not "free": it bears the arm)
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        assert line.sim.servo(2).target == 7000
+        p.click("#robot-start-free")
         expect(p.locator("#robot-cycle")).not_to_have_text("-")
+        expect(p.locator("#robot-start-free-choice")).to_be_hidden()
+        expect(p.locator("#robot-error")).to_have_text("")
+        assert line.sim.servo(2).free
         expect(p.locator("#robot-reopen")).to_be_hidden()
         # (Once the robot has read where elbow stands: on a loaded machine its first cycles may not have, and
         # motion on leaves a joint not read yet as it is.)
@@ -718,6 +730,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         line.sim.replug()
         p.click("#robot-reopen-hold")
         expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+        expect(p.locator("#robot-start-free-choice")).to_be_hidden()  # (asked once: before the first open)
         expect(p.locator("#robot-reopen")).to_be_hidden()
         expect(p.locator("#robot-error")).to_have_text("")
         assert line.sim.servo(2).target == elbow and not line.sim.servo(2).free  # never went limp
@@ -726,6 +739,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         line.sim.replug()
         p.click("#robot-reopen-free")
         expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+        expect(p.locator("#robot-start-free-choice")).to_be_hidden()  # (the person said so: nothing more asked)
         until(lambda: line.sim.servo(2).free, "elbow's servo was not freed")
         expect(p.locator("#robot-error")).to_have_text("")
         expect(p.locator("#robot-motion")).to_be_enabled()
@@ -766,7 +780,7 @@ def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints
         '[joints.knee]\nline = "lower"\nid = 2\n'
     )
     try:
-        with web_server_page(browser, upper, ["--robot", str(robot)]) as p:
+        with web_server_page(browser, upper, ["--robot", str(robot), "--yes"]) as p:
             p.click("#robot-link")
             for name in ("neck", "hip", "knee"):  # (read, so that motion on holds them where they stand)
                 expect(p.locator(f'tr[data-joint="{name}"] .angle')).to_have_text(re.compile(r"^-?\d"))

@@ -22,6 +22,7 @@ import pytest
 
 from ics35_async.extras import install_command, installed_from
 from tests.support.cli_runs import PRESS_AT_A_CALL
+from tests.support.pty_line import PtyLine
 from tests.support.timing import scaled
 
 
@@ -355,6 +356,8 @@ def test_bad_options_are_refused_in_words(cli: Any, tmp_path: Path) -> None:
     assert busy.code == 2 and "cannot listen on 203.0.113.9" in busy.err
     alone = cli("web", "--no-browser", "--start-pose", "knee=30")
     assert alone.code == 2 and "goes with --robot" in alone.err, alone.err
+    yes = cli("web", "--no-browser", "--yes")  # (it frees a robot's joints: nothing else asks in ics35 web)
+    assert yes.code == 2 and "--yes frees a robot's ICS 3.5 joints" in yes.err and "goes with --robot" in yes.err
     robot = tmp_path / "arm.toml"
     robot.write_text('[lines.arm]\nport = "sim://web-cli-pose"\n[joints.knee]\nline = "arm"\nid = 1\nmax = 40\n')
     for pose, words in (
@@ -421,6 +424,29 @@ def test_a_robot_line_on_a_fast_simulator_without_a_rate_is_said_to_run_flat_out
     # can time out on the default allowance, and its own warning names the line.)
     assert err.count("is a fast simulator") == 1, err
     assert "robot line paced" not in err and "robot line real" not in err, err
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("yes", [False, True], ids=["asks", "yes"])
+def test_the_server_frees_a_standing_robots_ics35_joints_at_its_start_only_with_yes(tmp_path: Path, yes: bool) -> None:
+    # It freed them without a word as it started, before any page was open: a humanoid standing on them fell.
+    line = PtyLine((1,))
+    try:
+        line.sim.servo(1).command_position(7000)  # (bearing the robot)
+        robot = tmp_path / "arm.toml"
+        robot.write_text(f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+        with web("--robot", str(robot), *(["--yes"] if yes else [])) as (proc, url):
+            base, token = split(url)
+            assert get(f"{base}/api/robot", token)[1]["open"] is yes  # (the server has started: the open is over)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(10) == 0
+            assert proc.stderr is not None
+            err = " ".join(proc.stderr.read().split())
+        assert line.sim.servo(1).free is yes, err
+        said = "not opened, nothing freed: joint shoulder speaks ICS 3.5"
+        assert (said in err and "answer the question on the Robot page" in err) is not yes, err
+    finally:
+        line.close()
 
 
 @contextmanager

@@ -25,6 +25,7 @@ from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.api import updates
 from ics35_async.web.joints import RobotSession
 from ics35_async.web.security import COOKIE
+from tests.support.pty_line import PtyLine
 
 TOKEN = "robot-test-token-0123456789"
 BASE = "http://127.0.0.1:8766"
@@ -793,7 +794,11 @@ def test_a_robot_line_missing_at_the_start_comes_with_reconnect_and_the_pages_fo
         assert "press Reconnect on the Robot page" in warned[0], warned
         assert f"the pages start on sim://{name}?ids=2 instead" in warned[1] and "Reconnect" in warned[1], warned
         link.symlink_to(pty_sim("--ids", "1").path)  # the adapter plugged in
-        reopened = post(client, "/api/robot/reopen", {})
+        # (the robot's first open, on a serial line: the page is asked before shoulder is freed to read it)
+        asked = post(client, "/api/robot/reopen", {})
+        assert asked.json()["start_free_choice"] == {"joints": ["shoulder"]}, asked.json()
+        assert client.get("/api/status").json()["robot_line"] is None  # (not open: the pages stay)
+        reopened = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]})
         assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
         status = client.get("/api/status").json()
         assert status["robot_line"] == "arm" and status["port"] == str(link) and status["connected"], status
@@ -810,7 +815,8 @@ def test_a_port_chosen_while_the_robot_was_missing_stays_the_pages_at_reconnect(
     path.write_text(f'[lines.arm]\nport = "{link}"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
     name = f"web-robot-{next(_names)}"
     session = LineSession(LineConfig(port=f"sim://{name}?ids=2"))
-    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True)
+    robot = RobotSession(str(path), ask_before_freeing=False)  # (--yes: Reconnect opens it at once)
+    app = create_app(session, TOKEN, robot=robot, line_from_robot=True)
     with TestClient(app, base_url=BASE) as client:
         client.cookies.set(COOKIE, TOKEN)
         chosen = f"sim://{name}-chosen?ids=3"
@@ -821,6 +827,81 @@ def test_a_port_chosen_while_the_robot_was_missing_stays_the_pages_at_reconnect(
         assert status["robot_line"] is None and status["port"] == chosen, status
     sim.named(name).close()
     sim.named(f"{name}-chosen").close()
+
+
+@contextlib.contextmanager
+def standing_arm(tmp_path: Path, ask: bool = True) -> Iterator[tuple[PtyLine, TestClient, list[str]]]:
+    """An arm on a serial line (a pty): shoulder on an ICS 3.5 servo (1) holding 7000 as the server starts, elbow on
+    an ICS 3.6 one (2); ``ask``: the server asks before freeing (``ics35 web --robot`` without --yes); the pages on
+    the robot's line (no --port given).  The line, the signed-in client and what the server warned of."""
+    line = PtyLine((1, 2), ics36=(2,))
+    line.sim.servo(1).command_position(7000)
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    warned: list[str] = []
+    session = LineSession(LineConfig(port=f"sim://web-robot-{next(_names)}?ids=3"))
+    robot = RobotSession(str(path), ask_before_freeing=ask)
+    app = create_app(session, TOKEN, robot=robot, warn=warned.append, line_from_robot=True)
+    try:
+        with TestClient(app, base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            yield line, client, warned
+    finally:
+        line.close()
+
+
+@pytest.mark.pty
+def test_a_robot_on_a_serial_line_frees_no_ics35_joint_at_the_servers_start_until_the_robot_page_says_so(
+    tmp_path: Path,
+) -> None:
+    # `ics35 web --robot` freed the ICS 3.5 joints it read at its start without a word (`play` asks): a humanoid
+    # standing on them fell as the server started, before any page was open.
+    with standing_arm(tmp_path) as (line, client, warned):
+        view = client.get("/api/robot").json()
+        assert not view["open"] and view["start_free_choice"] == {"joints": ["shoulder"]}, view
+        assert view["error"] == "not opened, nothing freed: the robot waits for the answer below", view
+        # (nothing was sent to them: none is shown free, as if it were not bearing the robot)
+        assert [(j["target"], j["uncommanded"]) for j in view["joints"]] == [(None, True)] * 2, view
+        said = "not opened, nothing freed: joint shoulder speaks ICS 3.5, whose position is read only by freeing it"
+        assert len(warned) == 2 and said in warned[0] and "--start-pose" in warned[0], warned
+        assert "instead: the Robot page's question, answered, brings them" in warned[1], warned
+        assert client.get("/api/status").json()["robot_line"] is None
+        assert line.sim.servo(1).target == 7000  # nothing freed it
+        # Reconnect without the answer: asked again, nothing freed.
+        again = post(client, "/api/robot/reopen", {})
+        assert again.status_code == 200 and not again.json()["open"], again.json()
+        assert again.json()["start_free_choice"] == {"joints": ["shoulder"]}
+        assert line.sim.servo(1).target == 7000
+        # The page's answer: the joints it named are freed to read them, and the robot opens.
+        opened = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]})
+        assert opened.status_code == 200 and opened.json()["open"], opened.json()
+        assert opened.json()["start_free_choice"] is None and opened.json()["error"] is None
+        assert line.sim.servo(1).free
+        assert client.get("/api/status").json()["robot_line"] == "arm"  # (the pages follow it there)
+
+
+@pytest.mark.pty
+def test_the_robot_pages_answer_covers_only_the_joints_it_named(tmp_path: Path) -> None:
+    # A joint the question did not name (its servo answered only since) is asked about before it is freed.
+    with standing_arm(tmp_path) as (line, client, _):
+        refused = post(client, "/api/robot/reopen", {"start_free": ["elbow"]})
+        assert not refused.json()["open"] and refused.json()["start_free_choice"] == {"joints": ["shoulder"]}
+        assert line.sim.servo(1).target == 7000
+        bad = post(client, "/api/robot/reopen", {"start_free": "shoulder"})
+        assert bad.status_code == 400 and "start_free" in bad.json()["error"], bad.json()
+        assert line.sim.servo(1).target == 7000
+
+
+@pytest.mark.pty
+def test_told_not_to_ask_the_server_opens_the_robot_at_its_start_freeing_its_ics35_joints(tmp_path: Path) -> None:
+    # (`ics35 web --robot FILE --yes`)
+    with standing_arm(tmp_path, ask=False) as (line, client, warned):
+        view = client.get("/api/robot").json()
+        assert view["open"] and view["start_free_choice"] is None, view
+        assert line.sim.servo(1).free and not any("shoulder" in said for said in warned), warned
 
 
 def test_the_robots_open_warnings_reach_the_servers_warn_not_a_raw_python_warning(tmp_path: Path) -> None:

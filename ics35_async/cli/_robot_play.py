@@ -23,7 +23,6 @@ from ..robot.motion import SPEEDS, check_pace
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
-from ..transports.wire_device import url_scheme
 from ._common import CliError, ExitCode, choice_option, out, seconds_option, settings_of
 from ._console import TitleInParts, say, say_labelled
 from ._params import yes_option
@@ -353,7 +352,7 @@ def ask_before_freeing_to_read(description: RobotDescription, robot_file: str) -
     standing on them falls.  Asked for those on a serial line (not the simulator); a "no" is exit code 5."""
 
     def ask(joints: list[str]) -> bool:
-        on_hardware = [j for j in joints if url_scheme(description.lines[description.joints[j].line].port) != "sim"]
+        on_hardware = description.on_hardware(joints)
         if on_hardware:
             one = len(on_hardware) == 1
             named = f"joint{'' if one else 's'} {', '.join(on_hardware)} of {description.name or robot_file}"

@@ -38,6 +38,12 @@ from ._start_pose import parse_start_pose, start_pose_option
     help="Also serve a Robot page for this robot description (its lines are its own; see ics35 play).",
 )
 @start_pose_option
+@click.option(
+    "--yes",
+    "-y",
+    is_flag=True,
+    help="With --robot: free its ICS 3.5 joints at the start to read them, without the Robot page's question.",
+)
 @click.pass_context
 def web(
     ctx: click.Context,
@@ -46,16 +52,21 @@ def web(
     token_file: str | None,
     robot_file: str | None,
     start_pose_text: str | None,
+    yes: bool,
 ) -> int:
     """Serve the servo configurator in the browser: scan, EEPROM, backup, renumber, jog, live plots, traffic.
 
     Prints the page's URL (with its access token) on the first line of stdout.
     Without --port it serves the built-in simulator, labelled as such on every page.
+    With --robot on a serial line, ICS 3.5 joints that would start free (read by freeing them) wait for the
+    Robot page's question before the robot opens (--start-pose states where they stand instead; --yes frees them).
     """
     settings = settings_of(ctx)
     start_pose = parse_start_pose(start_pose_text)
     if start_pose is not None and robot_file is None:
         raise click.UsageError("--start-pose is where a robot stands: it goes with --robot ROBOT.toml")
+    if yes and robot_file is None:
+        raise click.UsageError("--yes frees a robot's ICS 3.5 joints at the start: it goes with --robot ROBOT.toml")
     try:
         from ..web import LineConfig, Listen, load_token, serve
     except ImportError as exc:
@@ -143,6 +154,7 @@ def web(
             robot_file=robot_file,
             robot_options=options,
             robot_start_pose=start_pose,
+            robot_ask_before_freeing=not yes,
             line_from_robot=line_from_robot,
             note=note,
             no_browser_opened=no_browser_opened,

@@ -144,6 +144,11 @@ class RobotDescription:
         """The joints driven by servos on ``line``, in file order."""
         return [j for j in self.joints.values() if j.line == line]
 
+    def on_hardware(self, names: Iterable[str]) -> list[str]:
+        """Of the joints ``names``, those whose line is not the built-in simulator (a serial port or a bridge to
+        one): where freeing a joint at the start drops what it bears, so a program asks a person first."""
+        return [n for n in names if url_scheme(self.lines[self.joints[n].line].port) != "sim"]
+
     def only(self, names: Iterable[object]) -> RobotDescription:
         """This robot with only the joints ``names`` (in file order) and the lines they use: a robot opened on
         it streams, reads and frees no other joint (their servos keep what they hold).

@@ -355,7 +355,8 @@ async def robot_motion(request: Request, session: LineSession) -> Any:
 
 async def robot_reopen(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
-    await robot.reopen((await body(request)).get("lost_joints"))
+    data = await body(request)
+    await robot.reopen(data.get("lost_joints"), data.get("start_free"))
     # The pages follow the line to the reopened robot (or go to the one they stood in for, the robot not open at
     # the start).
     line = session.robot_line or session.robot_line_to_come

@@ -45,9 +45,23 @@ class RobotSession:
     """The robot ``ics35 web --robot FILE`` serves (open from :meth:`open` to :meth:`close`)."""
 
     def __init__(
-        self, path: str, options: Mapping[str, Any] | None = None, start_pose: Mapping[str, float] | None = None
+        self,
+        path: str,
+        options: Mapping[str, Any] | None = None,
+        start_pose: Mapping[str, float] | None = None,
+        *,
+        ask_before_freeing: bool = True,
     ) -> None:
         self.description = load_description(path)  # checked before the server starts
+        # Until a robot has been open, an ICS 3.5 joint on a serial line that would start free (read by its free
+        # command: a robot standing on it falls) waits for the page's answer: the open frees nothing and says which
+        # (start_free_choice), and Reconnect with those joints named opens it (ask_before_freeing=False, the CLI's
+        # --yes: not asked).  Once a robot was open, what starts free at a reopen was free already, or the person
+        # said so at Reconnect (lost_joints="free").
+        self.ask_before_freeing = ask_before_freeing
+        self.start_free_choice: list[str] | None = None
+        self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free
+        self._opened_once = False
         self.path = path
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
         # The next open's start_pose: the one given (--start-pose); after a lost line ended the robot, the
@@ -58,7 +72,9 @@ class RobotSession:
         self.lost_pose: dict[str, float] = {}
         self.lost_lines: list[str] = []
         self.last_targets: dict[str, float | None] = {}  # each joint's last command when a lost line ended the robot
-        self.last_uncommanded: frozenset[str] = frozenset()  # and those no target reached then (Robot.uncommanded)
+        # and those no target reached then (Robot.uncommanded); before any robot is open, every joint: nothing sent
+        # (a joint shown "free" there may be holding, bearing the robot)
+        self.last_uncommanded: frozenset[str] = frozenset(self.description.joints)
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.kept_trips: list[SafetyStop] = []  # the stops the next open's robot is told of (see _carry_on_from)
         self.robot: Robot | None = None
@@ -96,8 +112,12 @@ class RobotSession:
         self._holder = asyncio.create_task(hold, name="ics35 web robot")
         await opened.wait()
 
-    async def reopen(self, lost_joints: object = None) -> None:
+    async def reopen(self, lost_joints: object = None, start_free: object = None) -> None:
         """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks.
+
+        Before any robot was open, ``start_free`` names the joints the page's question named
+        (:attr:`start_free_choice`) that may start free: freed to read where they stand.  Any other that would
+        start free keeps the robot closed again, nothing freed, and is asked about.
 
         A joint that held a target when the robot ended carries on: on a line that stayed, it holds that
         target from the first command (its servo kept holding it); on the lost line an ICS 3.6 joint is
@@ -106,11 +126,18 @@ class RobotSession:
         power) or start free with ``"free"`` (they restarted); with such joints, one of the two must be given.
 
         Raises:
-            InvalidArgument: ``lost_joints`` is not "hold" or "free" while the lost line had holding joints.
+            InvalidArgument: ``lost_joints`` is not "hold" or "free" while the lost line had holding joints;
+                ``start_free`` is not a list of the robot's joint names.
             UnsafeOperation: the lost line is not back (the robot a lost line stopped stays as it is).
         """
         if self.robot is not None:
             return
+        if start_free is not None:
+            if not isinstance(start_free, list):
+                raise InvalidArgument(
+                    f"start_free must be a list of joint names (those the question named), not {start_free!r}"
+                )
+            self._free_confirmed = frozenset(self.description.known_joints(start_free))
         stopped = self._stopped_robot
         if stopped is not None:
             # Its lost line reopens by itself once its port is back (within a reconnect delay of it): until then
@@ -164,8 +191,17 @@ class RobotSession:
         warn_at_open.set(False)
         # reconnect: a lost line leaves the others streaming (see _stop_at_loss), its own reopened once it is back.
         options = {**self.options, "reconnect": True}
+        unconfirmed: list[str] = []  # the joints this open would have freed unasked: it freed nothing
+
+        def may_start_free(joints: list[str]) -> bool:
+            unconfirmed[:] = [j for j in self.description.on_hardware(joints) if j not in self._free_confirmed]
+            return not unconfirmed
+
+        if self.ask_before_freeing and not self._opened_once:
+            options["confirm_start_free"] = may_start_free
         try:
             async with open_robot(self.description, on_close="hold", start_pose=start_pose, **options) as robot:
+                self._opened_once, self.start_free_choice = True, None
                 for stop in self.kept_trips:  # (before anyone can move it: motion is off until the page's switch)
                     # Told as a "free" stop: the joint is free already, and "stop" would free the others too.
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
@@ -191,7 +227,11 @@ class RobotSession:
                     for task in (asked, ended, lost):
                         task.cancel()
         except (IcsError, OSError) as exc:
-            self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
+            if unconfirmed:
+                self.start_free_choice = unconfirmed
+                self.error = _not_freed(unconfirmed)
+            else:
+                self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
         finally:
             self.robot = self._stopped_robot = None
             self.motion_enabled = False
@@ -365,10 +405,13 @@ class RobotSession:
                 }
             )
         ready = self._reconnect_ready()
+        error = self.error if ready is None else f"{self._stopped_by(self.lost_lines)}; {ready}"
+        asking = None if robot or not self.start_free_choice else {"joints": self.start_free_choice}
         return {
             "name": self.description.name or self.path,
             "open": robot is not None,
-            "error": self.error if ready is None else f"{self._stopped_by(self.lost_lines)}; {ready}",
+            # (the open's question says the rest, where error's words, meant for the terminal, point to this page)
+            "error": "not opened, nothing freed: the robot waits for the answer below" if asking else error,
             "reconnect_ready": ready,  # (the page says it in place of an early Reconnect's refusal)
             "warnings": self.warnings if robot is not None else [],
             "cycle": None if frame is None else frame.cycle,
@@ -378,6 +421,8 @@ class RobotSession:
             "joints": joints,
             # Reconnect's question: what the lost line's holding joints do (see reopen)
             "reconnect_choice": {"lines": self.lost_lines, "joints": list(self.lost_pose)} if self.lost_pose else None,
+            # The open's question: the joints it would free to read them (see reopen's start_free)
+            "start_free_choice": asking,
         }
 
     async def set_motion(self, enabled: bool, page: str | None = None) -> None:
@@ -576,6 +621,18 @@ class RobotSession:
             f"{'its servo' if one else 'their servos'} may still hold; once the line is back, Reconnect frees "
             f"{'it' if one else 'them'}"
         )
+
+
+def _not_freed(joints: list[str]) -> str:
+    """Why the robot is not open: ``joints`` would start free, which the page has not confirmed."""
+    one = len(joints) == 1
+    named = f"joint{'' if one else 's'} {', '.join(joints)}"
+    return (
+        f"not opened, nothing freed: {named} {'speaks' if one else 'speak'} ICS 3.5, whose position is read only by"
+        f" freeing {'it' if one else 'them'}, and a robot standing on {'it' if one else 'them'} falls: hold the robot,"
+        " then answer the question on the Robot page (or start the server with --start-pose stating where"
+        f" {'it stands' if one else 'they stand'}, or --yes)"
+    )
 
 
 def _lines_named(lines: list[str]) -> str:

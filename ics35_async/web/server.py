@@ -122,9 +122,15 @@ def create_app(
             if robot.error and warn is not None:
                 warn(robot.error)
                 if line_from_robot:
+                    # (the robot's lines are there, only not opened, where the Robot page asks its question)
+                    then = (
+                        "the Robot page's question, answered,"
+                        if robot.start_free_choice
+                        else "Reconnect on the Robot page, once the robot's lines are there,"
+                    )
                     warn(
-                        f"the pages start on {session.config.port} instead: Reconnect on the Robot page, once the "
-                        "robot's lines are there, brings them to its first line (or choose a port on the Line page)"
+                        f"the pages start on {session.config.port} instead: {then} brings them to its first line"
+                        " (or choose a port on the Line page)"
                     )
         try:
             if robot is not None and robot.robot is not None and line_from_robot:
@@ -384,6 +390,7 @@ def serve(
     robot_file: str | None = None,
     robot_options: Mapping[str, Any] | None = None,
     robot_start_pose: Mapping[str, float] | None = None,
+    robot_ask_before_freeing: bool = True,
     line_from_robot: bool = False,
     note: Callable[[str], None] | None = None,
     no_browser_opened: Callable[[], None] | None = None,
@@ -401,11 +408,17 @@ def serve(
 
     ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``);
     ``robot_start_pose``: its ``start_pose`` (where the robot stands: those joints hold there from the start).
+    ``robot_ask_before_freeing``: its ICS 3.5 joints on serial lines that would start free (read by freeing them)
+    wait for the Robot page's answer before the robot opens (see ``RobotSession``); False: freed at the start.
     ``line_from_robot``: the pages start on the robot's first line rather than ``config``'s port.
     ``loop``: the event loop (``auto``: uvloop when it is installed, else asyncio's).
     """
     # A bad robot file is refused here, before binding.
-    robot = None if robot_file is None else RobotSession(robot_file, robot_options, robot_start_pose)
+    robot = (
+        None
+        if robot_file is None
+        else RobotSession(robot_file, robot_options, robot_start_pose, ask_before_freeing=robot_ask_before_freeing)
+    )
     sock = bind(listen)
     app = _Answering(
         create_app(

@@ -1012,9 +1012,13 @@ function onRobot(r) {
   // The lines lost (or never opened): open them again from here; when the lost line's joints were holding,
   // the person says what they do (the server cannot tell whether their servos kept their power).
   const choice = r.open ? null : r.reconnect_choice;
-  $("#robot-reopen").hidden = r.open || Boolean(choice);
+  // The open's question (a robot not yet open on a serial line): the ICS 3.5 joints it would free to read them.
+  const freeing = r.open ? null : r.start_free_choice;
+  $("#robot-reopen").hidden = r.open || Boolean(choice) || Boolean(freeing);
   $("#robot-reopen-choice").hidden = !choice;
   $("#robot-reopen-question").textContent = choice ? reconnectQuestion(choice) : "";
+  $("#robot-start-free-choice").hidden = !freeing;
+  $("#robot-start-free-question").textContent = freeing ? startFreeQuestion(freeing.joints) : "";
   $("#robot-motion").disabled = !r.open;
   $("#robot-cycle").textContent = r.cycle ?? "-";
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
@@ -1084,6 +1088,14 @@ function reconnectQuestion(choice) {
     "If their servos kept their power they still hold them; if they restarted, they are free somewhere else.";
 }
 
+// The open's question, worded for one joint or several.
+function startFreeQuestion(joints) {
+  const one = joints.length === 1;
+  return `${one ? "Joint" : "Joints"} ${joints.join(", ")} ${one ? "speaks" : "speak"} ICS 3.5: ${one ? "its" : "their"} position is read only by freeing ${one ? "it" : "them"}, ` +
+    `and a robot standing on ${one ? "it" : "them"} falls. Hold the robot (or lay it down) first; or start the server ` +
+    `again with --start-pose stating where ${one ? "it stands" : "they stand"}: ${one ? "it holds" : "they hold"} there instead.`;
+}
+
 // Where a joint's slider stands: its target; a free joint's, where it is (not the target it had before it was
 // freed: it may have been turned since, and motion switched on holds it where it is).
 function sliderAt(j) {
@@ -1096,7 +1108,7 @@ function sliderAt(j) {
 // targets, with nothing to reconnect to.
 function robotGone(why = "the configurator's server is gone") {
   const joints = state.robot.joints.map((j) => ({ ...j, position: null, offline: false, temperature_c: null, current: null }));
-  onRobot({ ...state.robot, open: false, cycle: null, motion_enabled: false, playing: null, reconnect_choice: null, joints,
+  onRobot({ ...state.robot, open: false, cycle: null, motion_enabled: false, playing: null, reconnect_choice: null, start_free_choice: null, joints,
     error: `${why}: nothing here is read or sent (the joints keep their last commands)` });
   $("#robot-reopen").hidden = true;
 }
@@ -1283,6 +1295,7 @@ async function reopenRobot(data) {
 on("#robot-reopen", "click", () => reopenRobot({}));
 on("#robot-reopen-hold", "click", () => reopenRobot({ lost_joints: "hold" }));
 on("#robot-reopen-free", "click", () => reopenRobot({ lost_joints: "free" }));
+on("#robot-start-free", "click", () => reopenRobot({ start_free: state.robot.start_free_choice.joints }));
 window.addEventListener("hashchange", show);
 
 api("/api/status").then(showStatus).catch(() => {});
