@@ -253,6 +253,44 @@ def test_negative_values_still_reach_move_and_set(cli: Any) -> None:
 
 
 @pytest.mark.parametrize(
+    "args",
+    [
+        ["info", "-1"],
+        ["get", "-1", "speed"],
+        ["free", "-1"],
+        ["free", "1", "-3"],
+        ["eeprom", "dump", "-1"],
+        ["eeprom", "set", "-1", "speed=100"],
+        ["monitor", "-1"],
+        ["set-id", "-1"],
+    ],
+    ids=["info", "get", "free", "free-second", "dump", "eeprom-set", "monitor", "set-id"],
+)
+def test_a_negative_id_is_said_to_be_no_servo_id(cli: Any, args: list[str]) -> None:
+    # Click took it for an option: "No such option '-1'", for an ID out of range.
+    result = cli("--port", "sim://?ids=1", *args)
+    assert result.code == ExitCode.USAGE and "No such option" not in result.err, result.err
+    negative = next(a for a in args if a.startswith("-"))
+    assert "0..31" in result.err and negative in result.err, result.err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["info", "-x", "1"], ["info", "1", "-1x"], ["eeprom", "dump", "1", "-q"], ["free", "-z", "1"]],
+    ids=["info-letter", "info-mixed", "dump", "free"],
+)
+def test_an_unknown_short_option_of_a_command_taking_ids_is_still_named_as_such(cli: Any, args: list[str]) -> None:
+    result = cli("--port", "sim://?ids=1", *args)
+    assert result.code == ExitCode.USAGE and "No such option" in result.err, result.err
+
+
+def test_a_value_that_starts_with_a_dash_still_reaches_its_option(cli: Any, tmp_path: Path) -> None:
+    # (-o's value is the file's name, whatever it looks like)
+    result = cli("--port", "sim://?ids=1", "eeprom", "dump", "1", "-o", str(tmp_path / "-one.json"))
+    assert result.code == 0 and (tmp_path / "-one.json").exists(), result.err
+
+
+@pytest.mark.parametrize(
     "command",
     [
         ["get", "1", "speed", "--json"],

@@ -22,9 +22,9 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    NegativeNumbersCommand,
     NobodyAnswered,
     Settings,
-    SignedValuesCommand,
     current_json,
     current_text,
     emit_json,
@@ -68,7 +68,7 @@ NO_READ_35 = f"{policies.NO_READ_ICS35}; pass --free"
 INFO_EEPROM_TITLE = "EEPROM (loaded into RAM at power-up; ics35 get reads RAM, where stretch is half stretch_gain)"
 
 
-@click.command()
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.option(
     "--free",
@@ -153,7 +153,7 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
 # --------------------------------------------------------------------------- move / free
 
 
-@click.command(cls=SignedValuesCommand)
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("position", metavar="POS")
 @click.option("--deg", "degrees", is_flag=True, help="POS is in degrees (0 = neutral, -135..+135).")
@@ -197,7 +197,7 @@ def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, force:
     return 0
 
 
-@click.command()
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("ids", metavar="IDS...", nargs=-1, required=True)
 @json_option
 @click.pass_context
@@ -402,7 +402,7 @@ class _ReadParamChoice(click.Choice):  # type: ignore[type-arg]
         return super().convert(value, param, ctx)
 
 
-@click.command()
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("param", metavar="PARAM", type=_ReadParamChoice([*READ_PARAMS, *EEPROM_LIMITS], case_sensitive=False))
 @json_option
@@ -467,7 +467,7 @@ class _WriteParamChoice(click.Choice):  # type: ignore[type-arg]
         return super().convert(value, param, ctx)
 
 
-@click.command(name="set", cls=SignedValuesCommand)
+@click.command(name="set", cls=NegativeNumbersCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("param", metavar="PARAM", type=_WriteParamChoice(list(WRITE_PARAMS), case_sensitive=False))
 @click.argument("value", metavar="VALUE", type=int)

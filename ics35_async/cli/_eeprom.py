@@ -17,7 +17,7 @@ import click
 from ..eeprom import EEPROM_FIELDS, READ_ONLY_FLAGS, BaudRate, Flags
 from ..errors import InvalidArgument, MalformedEeprom
 from ..policies import check_changes, plan_eeprom_write
-from ._common import SERVO_ID, CliError, json_option, run, settings_of, yes_option
+from ._common import SERVO_ID, CliError, NegativeNumbersCommand, json_option, run, settings_of, yes_option
 from ._eeprom_backup import dump, restore
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 
@@ -100,7 +100,9 @@ def parse_assignment(text: str, edit: Edit) -> None:
     edit.changes[name] = number
 
 
-@eeprom.command(name="set", short_help="Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH.")
+@eeprom.command(
+    name="set", cls=NegativeNumbersCommand, short_help="Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH."
+)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("assignments", metavar="FIELD=VALUE...", nargs=-1, required=True)
 @click.option("--change-baud", is_flag=True, help="Allow baud_rate=... (the servo then talks only at that rate).")

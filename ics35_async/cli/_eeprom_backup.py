@@ -41,6 +41,7 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    NegativeNumbersCommand,
     NobodyAnswered,
     Settings,
     emit_json,
@@ -146,7 +147,7 @@ def write_backup(path: Path, doc: dict[str, Any]) -> Path | None:
         raise CliError(ExitCode.USAGE, f"cannot write {path}: {exc.strerror or exc}") from None
 
 
-@click.command()
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("ids", metavar="IDS", type=ID_LIST)
 @click.option(
     "--output",

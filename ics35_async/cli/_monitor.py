@@ -11,6 +11,7 @@ from ._common import (
     ID_LIST,
     CliError,
     ExitCode,
+    NegativeNumbersCommand,
     every_id,
     ids_named,
     json_option,
@@ -27,7 +28,7 @@ from ._plot import Recorder
 from ._telemetry import Telemetry
 
 
-@click.command()
+@click.command(cls=NegativeNumbersCommand)
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
 @seconds_option(
     "--seconds",

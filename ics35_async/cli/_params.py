@@ -82,12 +82,14 @@ class ListType(click.ParamType[list[int]]):
             self.fail(f"{said}{self._hint}", param, ctx)
 
 
-class SignedValuesCommand(click.Command):
-    """A command whose arguments may be negative numbers (``move 1 -30 --deg``, ``set 1 speed -5``).
+class NegativeNumbersCommand(click.Command):
+    """A command whose arguments may be written as negative numbers: values (``move 1 -30 --deg``, ``set 1 speed
+    -5``), and IDs, whose own check then says what is wrong (``info -1``: "servo ID must be 0..31, got -1").
 
-    Click takes ``-30`` for an option unless unknown options are let through, and then it lets a mistyped
-    option through too: ``move --bogus`` said "'--bogus' is not a servo ID".  A word of two dashes is never a
-    number, so one the command does not have is refused as click refuses it elsewhere, with its near names.
+    Click takes ``-30`` for an option ("No such option '-1'") unless unknown options are let through, and then it
+    lets a mistyped option through too: ``move --bogus`` said "'--bogus' is not a servo ID".  So only a negative
+    number is let through: any other word that starts with a dash and is not one of the command's options (or a
+    run of its one-letter flags) is refused as click refuses it elsewhere, with its near names.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -95,14 +97,27 @@ class SignedValuesCommand(click.Command):
         super().__init__(*args, **kwargs)
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
-        known = [name for p in self.get_params(ctx) for name in (*p.opts, *p.secondary_opts) if name[:2] == "--"]
-        for arg in args:
+        params = self.get_params(ctx)
+        known = [name for p in params for name in (*p.opts, *p.secondary_opts)]
+        letters = {name[1] for name in known if len(name) == 2 and name[0] == "-" and name[1] != "-"}
+        valued = {name for p in params if isinstance(p, click.Option) and not p.is_flag for name in p.opts}
+        words = iter(args)
+        for arg in words:
             if arg == "--":
                 break  # (what follows is arguments only)
-            name = arg.partition("=")[0]
-            if name[:2] == "--" and name not in known:
-                raise click.NoSuchOption(name, possibilities=difflib.get_close_matches(name, known), ctx=ctx)
+            if arg in valued:
+                next(words, None)  # (its value, whatever it looks like: -o -x.json)
+                continue
+            name = arg.partition("=")[0] if arg[:2] == "--" else arg
+            if name[:1] != "-" or name == "-" or name in known or _NEGATIVE.fullmatch(name):
+                continue
+            if name[:2] != "--" and set(name[1:]) <= letters:
+                continue  # (-yq: flags run together)
+            raise click.NoSuchOption(name, possibilities=difflib.get_close_matches(name, known), ctx=ctx)
         return super().parse_args(ctx, args)
+
+
+_NEGATIVE = re.compile(r"-\d+(\.\d*)?")
 
 
 SERVO_ID = ServoIdType()

@@ -23,6 +23,7 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    NegativeNumbersCommand,
     Settings,
     all_ids_option,
     answered_garbled,
@@ -305,7 +306,7 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
     return survey.lone_id
 
 
-class _NewIdOnly(click.Command):
+class _NewIdOnly(NegativeNumbersCommand):
     """``set-id NEW``: given an old ID too (``set-id 1 5``, as other tools take them), it says why NEW is enough."""
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
