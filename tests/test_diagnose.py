@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -691,6 +693,37 @@ def test_doctor_and_ports_on_a_pseudo_terminal_say_so_and_give_no_adapter_advice
         notes = cli("--port", port, "ports", "--json").json()["notes"]
         assert any("pseudo-terminal" in note for note in notes), notes
         assert not [n for n in notes if any(w in n for w in ADAPTER_WORDS)], notes
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the holder is found in Linux's /proc")
+def test_doctor_on_a_port_another_program_holds_says_so_once(cli: Any, pty_sim: Any) -> None:
+    # It said who held the port, then tried to open it all the same and said "in use by another program" too:
+    # two errors for one cause.
+    sim = pty_sim("--ids", "1", "--fast")
+    holding = "import os, sys, time; os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY); time.sleep(60)"
+    holder = subprocess.Popen([sys.executable, "-c", holding, sim.path])
+    try:
+        wait_until_held(os.path.realpath(sim.path), holder.pid)
+        text = cli("--port", sim.path, "doctor", "--ids", "1")
+        said = " ".join(text.err.split())
+        assert text.code == ExitCode.PORT and said.count("error:") == 1, text.err
+        assert f"is held open by python (process {holder.pid})" in said and f"kill {holder.pid}" in said, said
+        assert "in use by another program" not in said, said
+        data = cli("--port", sim.path, "doctor", "--ids", "1", "--json")
+        errors = [f for f in data.json()["findings"] if f["severity"] == "error"]
+        assert data.code == ExitCode.PORT and [f["check"] for f in errors] == ["holder"], errors
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def wait_until_held(path: str, pid: int) -> None:
+    """Until process ``pid`` has ``path`` open (its start takes a moment)."""
+    deadline = time.monotonic() + GUARD
+    while not any(os.path.realpath(f"/proc/{pid}/fd/{fd}") == path for fd in os.listdir(f"/proc/{pid}/fd")):
+        assert time.monotonic() < deadline, f"process {pid} never opened {path}"
+        time.sleep(0.02)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a pty's name: Linux's /dev/pts")

@@ -179,7 +179,8 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     Reads only (temperature reads; ID reads at the other rates when none answers: nothing moves, nothing
     is freed).  Without --port only the machine
     is checked.  Exit codes: 0 checked (findings are advice), 1 the port was lost while measuring, 3 the port
-    cannot be opened, 4 no servo answered, 6 none answered at --baud but a device does at another rate (named).
+    cannot be opened or another program holds it (the line is not measured), 4 no servo answered, 6 none
+    answered at --baud but a device does at another rate (named).
     """
     settings = settings_of(ctx)
     port = None if settings.port_defaulted else settings.port
@@ -199,6 +200,10 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         # (the port is not there: said once, as the command's error, with what its name may have meant)
         fixes = [f for f in (unreachable[0].fix, *misnamed_port_hints(port)) if f]
         failure = CliError(ExitCode.PORT, unreachable[0].problem, *fixes)
+    elif held := [f for f in system.findings if f.check == "holder" and f.severity == "error"]:
+        # (another program has it open: opening it too fails for that one cause, said once with who holds it; or,
+        # where the open is let through, its reads would share the replies with that program's)
+        failure = CliError(ExitCode.PORT, held[0].problem, *([held[0].fix] if held[0].fix else []))
     else:
         try:
             line, bursts, nobody = measure(settings, ids, samples, system, system_root)
