@@ -149,6 +149,19 @@ def test_servos_plugged_in_renumbered_unplugged_and_plugged_back(sim_console: Ca
     ]
 
 
+def test_the_simulators_first_line_names_the_link_to_open_not_the_pty_a_replug_renames() -> None:
+    # It said "real-time on /dev/pts/2 (link ...)": a program given /dev/pts/2 lost the line for good at the console's
+    # replug port (the pty is a new one, the link the same).
+    keys = [("sim>", b"unplug port\n"), ("replug port", b"replug port\n"), ("back in", b"quit\n")]
+    code, written = typed_on_a_terminal(["sim", "--ids", "1", "--console"], keys, columns=200)
+    screen = [line for line in screen_of(written, width=200) if line]
+    assert code == 0, screen
+    link = screen[0]
+    said = next(line for line in screen if line.startswith("ics35 sim: 1 servo"))
+    assert said.startswith(f"ics35 sim: 1 servo at 115200 bit/s, real-time on {link} (a link to /dev/pts/"), said
+    assert said.endswith(", which a replug renames: open the link)"), said
+
+
 @pytest.mark.slow
 def test_the_port_unplugged_and_plugged_back_in_from_the_console(sim_console: Callable[..., Console]) -> None:
     # As pulling the USB adapter out and putting it back: the link goes and a program on the port loses it; it

@@ -299,7 +299,8 @@ def main(
             what += "real-time" if device.realtime else "fast"
         if isinstance(device, VirtualLine) and device.adapter is not None:
             what += f", behind a USB adapter model ({device.adapter.latency_timer_ms} ms latency timer)"
-        to_stderr(f"ics35 sim: {what} on {server.pts_name} (link {path})")
+        # (the link first: a program given the pty itself loses the line for good at a replug, which makes a new one)
+        to_stderr(f"ics35 sim: {what} on {path} (a link to {server.pts_name}, which a replug renames: open the link)")
         if tap is not None:
             to_stderr(f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})")
         if args.console and isinstance(device, VirtualLine):
