@@ -300,12 +300,26 @@ def lost_line_hint(
     exc: IcsError,
     others_left: str | None,
     opening_left: str | None = None,
+    holding: Callable[[str], list[str] | None] | None = None,
 ) -> str:
     """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
     (that line's port, baud rate, echo and direction control: the robot file's; ``others_left``: what the
     command left the other lines' joints in, when it has several; ``opening_left``: what the open left every
-    joint in, when the port was lost as the robot opened: the command had done nothing with them yet)."""
+    joint in, when the port was lost as the robot opened: the command had done nothing with them yet;
+    ``holding``: the joints of a line that may hold something when it went, None where that is not known)."""
     line = _line_of(description, exc)
+    held = None if line is None or holding is None or opening_left is not None else holding(line.name)
+    if held == [] and line is not None:  # (all of them free: calibrate's, teach's; nothing to free)
+        names = [j.name for j in description.joints_on(line.name)]
+        named = (
+            f"joint {names[0]} on the lost line was"
+            if len(names) == 1
+            else f"joints {', '.join(names)} on the lost line were"
+        )
+        others = (
+            f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
+        )
+        return f"{named} free when it went: nothing holds them{others}"
     free = "ics35 free all -p PORT"
     if line is not None:
         here = dataclasses.replace(
@@ -347,6 +361,16 @@ class Opening:
         """What the open left the joints in, if the command was still opening its robot; else None."""
         return None if self._over or self._block is None else self._block.joints_left()
 
+    def holding_on(self, line: str) -> list[str] | None:
+        """The joints of ``line`` whose servos may hold something: a target, or torque as found (only read, or
+        offline: not known); None before the robot had its lines."""
+        robot = None if self._block is None else self._block.robot
+        if robot is None:
+            return None
+        targets, uncommanded = robot.targets, robot.uncommanded
+        joints = [j.name for j in robot.description.joints_on(line)]
+        return [j for j in joints if targets[j] is not None or j in uncommanded]
+
 
 def run_robot(
     settings: Settings,
@@ -384,7 +408,8 @@ def run_robot(
             error = translate(settings, exc)
             # Lost before the command had its robot: what others_left says of a running command is not so yet.
             opened = opening.joints_left() if opening is not None else None
-            error.hints.append(lost_line_hint(settings, description, exc, others_left, opened))
+            holding = None if opening is None else opening.holding_on
+            error.hints.append(lost_line_hint(settings, description, exc, others_left, opened, holding))
             raise error from None
         except SerialPortError as exc:
             error = translate(settings, exc)

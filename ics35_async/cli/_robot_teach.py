@@ -450,8 +450,8 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             )
 
             def summary() -> str:
-                if lost:
-                    return f"LINE LOST: calibration cut short, nothing written to {escape(robot_file)}"
+                if lost:  # (what was written, nothing, the error says: once)
+                    return "LINE LOST: calibration cut short"
                 return "step 1/2: the neutral pose" if step[0] == "neutral" else "step 2/2: each joint's range"
 
             def table() -> Table:
@@ -561,7 +561,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         run_robot(settings, description.only(names), body, others_left="free", opening=opening)  # (as teach's)
     except CliError as exc:
         if lost:
-            say(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
+            exc.message = f"{exc.message}; nothing written to {robot_file}"
         if exc.code == ExitCode.INTERRUPTED:  # (the file is written only once step 2 ends with Enter)
             left = opening.joints_left()
             exc.message = (
