@@ -327,8 +327,31 @@ def test_a_scan_of_some_ids_that_finds_none_names_them_and_points_at_the_others(
     result = cli("--port", "sim://?ids=1-6", "--timeout", "0.02", "scan", "--ids", "20-31", "--bauds", "115200")
     assert result.code == ExitCode.NO_REPLY, result.err
     said = " ".join(result.err.split())
-    assert "no servo among 20-31 answered on sim://?ids=1-6 at 115200 baud" in said, said
-    assert "without --ids" in said and "tries every ID at every baud rate" not in said, said
+    # (and that other servos answer: the line, its rate and its power are right, the IDs asked are not, as doctor
+    # says it; the power hints were given)
+    assert "no servo among 20-31 answered on sim://?ids=1-6 at 115200 baud, but a servo at another ID does" in said
+    assert "scan lists the IDs on the line; pass those to --ids" in said and "6-12 V" not in said, said
+    assert "tries every ID at every baud rate" not in said, said
+
+
+def test_a_scan_of_some_ids_on_a_line_of_one_servo_names_the_id_it_answers_at(cli: Any) -> None:
+    result = cli("--port", "sim://?ids=2", "--timeout", "0.02", "scan", "--ids", "20-25")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    where = "sim://?ids=2 at 115200, 625000, 1250000 baud"
+    assert f"no servo among 20-25 answered on {where}, but a servo at ID 2 does at 115200 baud" in said, said
+    assert "scan --ids 2" in said and "6-12 V" not in said, said
+    data = cli("--port", "sim://?ids=2", "--timeout", "0.02", "scan", "--ids", "20-25", "--bauds", "115200", "--json")
+    assert data.code == ExitCode.NO_REPLY and data.json()["answered_elsewhere"] == [{"baud": 115200, "id": 2}]
+    assert data.json()["servos"] == [] and data.json()["id_read_only"] == []
+
+
+def test_a_scan_of_some_ids_on_a_line_where_nothing_answers_gives_the_power_hints(cli: Any) -> None:
+    result = cli("--port", "sim://?ids=none", "--timeout", "0.02", "scan", "--ids", "20-25", "--bauds", "115200")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    assert "no servo among 20-25 answered" in said and "another ID" not in said and "6-12 V" in said, said
+    assert "without --ids" in said, said
 
 
 def test_bulk_dump_saves_the_servos_that_answer(cli: Any, sim_line: Any, tmp_path: Path) -> None:

@@ -73,6 +73,29 @@ async def test_a_rate_where_nobody_answers_costs_one_transaction(lines: Any) -> 
     assert sim.transactions == 3 + 32 + 2
 
 
+async def test_a_scan_of_some_ids_that_finds_none_asks_the_line_once_whether_a_device_at_another_id_answers(
+    lines: Any,
+) -> None:
+    # (so that a person told "none of 20-25 answered" also hears that the line and its power are right)
+    one = lines([VirtualServo(2)])
+    (rate,) = (await scan(opener(one), bauds=[115200], ids=range(20, 26), read_eeprom=False)).rates
+    assert rate.elsewhere and rate.id_answer == 2 and not rate.only_id_read
+    assert [t.command for t in one.log].count("read_id") == 1
+    several = lines([VirtualServo(1), VirtualServo(2)])  # (they answer the ID read together: garbled)
+    (rate,) = (await scan(opener(several), bauds=[115200], ids=[7], read_eeprom=False)).rates
+    assert rate.elsewhere and rate.id_answer is None
+    empty = lines([])
+    (rate,) = (await scan(opener(empty), bauds=[115200], ids=[7], read_eeprom=False)).rates
+    assert not rate.elsewhere
+    # A device that answers the ID read as an ID that was asked is no other ID's (see only_id_read).
+    odd = lines([VirtualServo(3, ignores={"read_stretch"})])
+    (rate,) = (await scan(opener(odd), bauds=[115200], ids=range(10), read_eeprom=False)).rates
+    assert not rate.elsewhere and rate.only_id_read and rate.id_answer == 3
+    # Every ID asked: nothing more to learn.
+    (rate,) = (await scan(opener(lines([])), bauds=[115200], read_eeprom=False)).rates
+    assert rate.nobody and not rate.elsewhere
+
+
 async def test_silent_ids_are_not_retried_even_when_the_bus_retries(lines: Any) -> None:
     sim = lines([VirtualServo(2)])
     async with open_bus(sim, retries=3, **FAST) as bus:

@@ -30,13 +30,12 @@ from ._common import (
     every_id,
     ids_text,
     json_option,
-    no_servo_among,
     out,
     run,
     settings_of,
 )
 from ._console import say, say_labelled
-from ._errors import answered_garbled, nothing_answered, trying_rates
+from ._errors import answered_at_another_id, answered_garbled, nothing_answered, trying_rates
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -58,11 +57,7 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan, id
         return nothing_answered(settings, where, silent=True)
     if not probed.garbled and not every_id(ids) and await policies.anyone_there(bus):
         # (`--ids 9` on a line of servos 1-6: the line and its rate are right, the IDs asked are not)
-        return CliError(
-            ExitCode.NO_REPLY,
-            f"{no_servo_among(ids)} answered on {where}, but a servo at another ID does",
-            f"{settings.command_line('scan')} lists the IDs on the line; pass those to --ids",
-        )
+        return answered_at_another_id(settings, ids, where)
     search = policies.RateSearch((settings.baud,))
     if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
         # (advice only: a port that cannot be opened again leaves what was said)

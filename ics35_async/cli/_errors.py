@@ -289,6 +289,26 @@ def _at_another_rate(settings: Settings, ids: Sequence[int], rate: int) -> CliEr
     )
 
 
+def answered_at_another_id(
+    settings: Settings, ids: Sequence[int], where: str, at_id: int | None = None, rate: str = ""
+) -> CliError:
+    """The error for IDs none of which answered on a line where a device at another ID does (an ID read: ``at_id``,
+    its ID where one device gave it; ``rate``: " at N baud" where several rates were asked): the line, its rate and
+    its power are right, the IDs asked are not."""
+    asked = f"{no_servo_among(ids)} answered on {where}"
+    if at_id is None:
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"{asked}, but a servo at another ID does{rate}",
+            f"{settings.command_line('scan')} lists the IDs on the line; pass those to --ids",
+        )
+    return CliError(
+        ExitCode.NO_REPLY,
+        f"{asked}, but a servo at ID {at_id} does{rate}",
+        f"ask for it at its ID: {settings.command_line('scan', '--ids', str(at_id))}",
+    )
+
+
 def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:
     """The error for a line where no servo answered; ``silent``: not a single byte came back."""
     if silent and settings.echo:

@@ -43,6 +43,7 @@ from ._common import (
 )
 from ._console import print_heading, printed_table, say, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
+from ._errors import answered_at_another_id
 
 # --------------------------------------------------------------------------- scan
 
@@ -141,6 +142,8 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
             "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
             "rate_blind": report.rate_blind,
             "id_read_only": [{"baud": r.baud, "id": r.id_answer} for r in report.rates if r.only_id_read],
+            # (none of the IDs asked answered there, but a device at an ID not asked did: its ID, null if several)
+            "answered_elsewhere": [{"baud": r.baud, "id": r.id_answer} for r in report.rates if r.elsewhere],
             "lost": None if report.lost is None else settings.as_given(str(report.lost)),
         }
     )
@@ -270,6 +273,10 @@ def scan(
             where = f"{settings.port} (at the bridge's own rate)"
         if report.garbled:
             raise answered_garbled(settings, where, [(baud, i) for baud, i, _ in report.garbled])
+        elsewhere = next((r for r in report.rates if r.elsewhere), None)
+        if elsewhere is not None:  # (`--ids 20-31` on a line of servos 1-6: as doctor says it)
+            rate = f" at {elsewhere.baud} baud" if len(scanned) > 1 else ""
+            raise answered_at_another_id(named, ids, where, elsewhere.id_answer, rate)
         failure = nothing_answered(settings, where, silent=report.silent)
         if not every_id(ids) and not (report.silent and settings.echo):
             # Told to try some IDs: those are named, and the hint that scan tries every ID says how.

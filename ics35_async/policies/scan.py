@@ -108,11 +108,15 @@ class RateScan:
     echo_evidence: ReplyError | None = None  # an error showing the line's echo setting is wrong
     id_answer: int | None = None  # the ID a device gave to the ID read (None: not asked, or no clean answer)
     lost: IcsError | None = None  # the line was lost part-way (in a scan's report; probe_ids raises it)
+    # None of the IDs probed answered, but a device answers the ID read: at an ID not probed (asked by a scan of
+    # some IDs only; id_answer, its ID where one device gave it)
+    elsewhere: bool = False
 
     @property
     def only_id_read(self) -> bool:
-        """A device answered the ID read, but no probed ID the stretch read (nor garbled)."""
-        return self.id_answer is not None and not self.answered and not self.garbled
+        """A device answered the ID read, but no probed ID the stretch read (nor garbled), and it is not known to be
+        at an ID that was not probed (``elsewhere``)."""
+        return self.id_answer is not None and not self.answered and not self.garbled and not self.elsewhere
 
 
 @dataclass(frozen=True)
@@ -396,6 +400,8 @@ async def scan(
                 continue
             rate_blind = not carries_line_settings(getattr(line, "port", None))
             rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe)
+            if len(set(wanted)) < len(ALL_IDS) and _none_there(rate, line.echo):
+                rate = await _look_elsewhere(line, rate, wanted)
             rates.append(rate)
             lost = rate.lost
             if read_eeprom and lost is None:
@@ -420,6 +426,28 @@ async def scan(
     reasons = {baud: str(exc) for baud, exc in skipped.items()}
     listed = tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud)))
     return ScanReport(listed, tuple(rates), reasons, rate_blind, lost)
+
+
+def _none_there(rate: RateScan, echo: bool) -> bool:
+    """None of the IDs probed at this rate answered, cleanly or not, on a line that is heard (with ``echo``, a
+    line where not even the echo came back is the adapter's or the wiring's, not the IDs')."""
+    heard = not (rate.silent and echo)
+    return heard and not (rate.answered or rate.garbled or rate.nobody or rate.echo_evidence or rate.lost)
+
+
+async def _look_elsewhere(line: Line, rate: RateScan, wanted: list[int]) -> RateScan:
+    """``rate`` with ``elsewhere`` where a device at an ID not in ``wanted`` answers the ID read (several at once
+    answer it garbled): the line and its rate are right, the IDs asked are not.  One ID read, asked unless the
+    probe's own answered (a device answering it as an ID that was probed is ``only_id_read``: not elsewhere)."""
+    answer: int | ReplyError | None = rate.id_answer
+    if answer is None:
+        try:
+            answer = await _id_read(line)
+        except (BusClosed, PortLost):
+            return rate  # (the loss shows in the next rate's opening, or not at all: this was advice)
+    if isinstance(answer, ReplyError):
+        return rate if nothing_came_back(answer) else dataclasses.replace(rate, elsewhere=True)
+    return rate if answer in wanted else dataclasses.replace(rate, elsewhere=True, id_answer=answer)
 
 
 async def _read_images(
