@@ -285,9 +285,11 @@ def test_an_unknown_short_option_of_a_command_taking_ids_is_still_named_as_such(
 
 
 def test_a_value_that_starts_with_a_dash_still_reaches_its_option(cli: Any, tmp_path: Path) -> None:
-    # (-o's value is the file's name, whatever it looks like)
+    # (-o's value is the file's name, whatever it looks like; joined to its option too)
     result = cli("--port", "sim://?ids=1", "eeprom", "dump", "1", "-o", str(tmp_path / "-one.json"))
     assert result.code == 0 and (tmp_path / "-one.json").exists(), result.err
+    joined = cli("eeprom", "dump", "1", "-psim://?ids=1", f"-o{tmp_path / 'two.json'}")
+    assert joined.code == 0 and (tmp_path / "two.json").exists(), joined.err
 
 
 @pytest.mark.parametrize(
@@ -350,6 +352,9 @@ def test_set_id_given_an_old_id_too_says_it_takes_the_new_one_only(cli: Any) -> 
     assert result.code == ExitCode.USAGE, result.err
     said = " ".join(result.err.split())
     assert "takes the new ID only" in said and "ics35 set-id 5" in said, said
+    # (a line option's value after the ID is no second ID)
+    renamed = cli("--port", "sim://?ids=1", "set-id", "5", "--baud", "115200", "--yes")
+    assert renamed.code == 0 and "takes the new ID only" not in renamed.err, renamed.err
 
 
 def test_an_id_list_that_is_not_one_is_refused_with_one_example(cli: Any) -> None:

@@ -97,24 +97,32 @@ class NegativeNumbersCommand(click.Command):
         super().__init__(*args, **kwargs)
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        self.arguments_given(ctx, args)  # (refuses an unknown option)
+        return super().parse_args(ctx, args)
+
+    def arguments_given(self, ctx: click.Context, args: list[str]) -> list[str]:
+        """The words of ``args`` that are arguments, not options nor their values; an unknown option is refused."""
         params = self.get_params(ctx)
         known = [name for p in params for name in (*p.opts, *p.secondary_opts)]
         letters = {name[1] for name in known if len(name) == 2 and name[0] == "-" and name[1] != "-"}
         valued = {name for p in params if isinstance(p, click.Option) and not p.is_flag for name in p.opts}
+        arguments: list[str] = []
         words = iter(args)
         for arg in words:
             if arg == "--":
-                break  # (what follows is arguments only)
+                arguments.extend(words)  # (what follows is arguments only)
+                break
             if arg in valued:
                 next(words, None)  # (its value, whatever it looks like: -o -x.json)
                 continue
             name = arg.partition("=")[0] if arg[:2] == "--" else arg
-            if name[:1] != "-" or name == "-" or name in known or _NEGATIVE.fullmatch(name):
+            if name[:1] != "-" or name == "-" or _NEGATIVE.fullmatch(name):
+                arguments.append(arg)
                 continue
-            if name[:2] != "--" and set(name[1:]) <= letters:
-                continue  # (-yq: flags run together)
+            if name in known or (name[:2] != "--" and (set(name[1:]) <= letters or name[:2] in valued)):
+                continue  # (an option; -yq: flags run together; -p/dev/ttyUSB0: a value joined to its option)
             raise click.NoSuchOption(name, possibilities=difflib.get_close_matches(name, known), ctx=ctx)
-        return super().parse_args(ctx, args)
+        return arguments
 
 
 _NEGATIVE = re.compile(r"-\d+(\.\d*)?")

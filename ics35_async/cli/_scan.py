@@ -317,17 +317,15 @@ class _NewIdOnly(NegativeNumbersCommand):
     """``set-id NEW``: given an old ID too (``set-id 1 5``, as other tools take them), it says why NEW is enough."""
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
-        numbers = [a for a in args if a.isdigit()]  # (before click's parser takes them from the list)
-        try:
-            return super().parse_args(ctx, args)
-        except click.UsageError as exc:
-            if "unexpected extra argument" not in exc.message or len(numbers) < 2:
-                raise
+        # (counted before click's parser, whose words for an extra argument are its own)
+        numbers = [a for a in self.arguments_given(ctx, args) if a.isdigit()]
+        if len(numbers) >= 2:
             raise click.UsageError(
                 f"set-id takes the new ID only: the one servo on the line is found whatever its ID now "
                 f"(ics35 set-id {numbers[-1]})",
                 ctx,
-            ) from None
+            )
+        return super().parse_args(ctx, args)
 
 
 @click.command(name="set-id", cls=_NewIdOnly)
