@@ -701,13 +701,18 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         # The server's start freed nothing: the Robot page asks before it frees elbow to read it (ICS 3.5).
         expect(p.locator("#robot-start-free-question")).to_contain_text("Joint elbow speaks ICS 3.5")
         expect(p.locator("#robot-start-free-question")).to_contain_text("--start-pose stating where it stands")
-        expect(p.locator("#robot-error")).to_contain_text("not opened, nothing freed")
+        expect(p.locator("#robot-error")).to_contain_text("the robot is not open, nothing freed")
         expect(p.locator('tr[data-joint="elbow"] .target')).to_have_text("-")  # (not "free": it bears the arm)
+        # (nothing read, nothing watched: not "ok", not "all within limits")
+        expect(p.locator('tr[data-joint="elbow"] .safety')).to_have_text("-")
+        expect(p.locator("#robot-state")).to_have_text("not open")
         expect(p.locator("#robot-reopen")).to_be_hidden()
         assert line.sim.servo(2).target == 7000
         p.click("#robot-start-free")
         expect(p.locator("#robot-cycle")).not_to_have_text("-")
         expect(p.locator("#robot-start-free-choice")).to_be_hidden()
+        expect(p.locator("#robot-state")).to_contain_text("opened: elbow freed to read where it stands")
+        expect(p.locator('tr[data-joint="elbow"] .safety')).to_have_text("ok")
         expect(p.locator("#robot-error")).to_have_text("")
         assert line.sim.servo(2).free
         expect(p.locator("#robot-reopen")).to_be_hidden()

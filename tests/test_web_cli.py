@@ -443,7 +443,7 @@ def test_the_server_frees_a_standing_robots_ics35_joints_at_its_start_only_with_
             assert proc.stderr is not None
             err = " ".join(proc.stderr.read().split())
         assert line.sim.servo(1).free is yes, err
-        said = "not opened, nothing freed: joint shoulder speaks ICS 3.5"
+        said = "the robot was not opened, nothing freed: joint shoulder speaks ICS 3.5"
         assert (said in err and "answer the question on the Robot page" in err) is not yes, err
     finally:
         line.close()

@@ -20,6 +20,7 @@ from starlette.testclient import TestClient
 from ics35_async import InvalidArgument, UnsafeOperation, sim
 from ics35_async.robot import RobotWarning
 from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
+from ics35_async.sim import VirtualServo
 from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.api import updates
@@ -830,12 +831,18 @@ def test_a_port_chosen_while_the_robot_was_missing_stays_the_pages_at_reconnect(
 
 
 @contextlib.contextmanager
-def standing_arm(tmp_path: Path, ask: bool = True) -> Iterator[tuple[PtyLine, TestClient, list[str]]]:
-    """An arm on a serial line (a pty): shoulder on an ICS 3.5 servo (1) holding 7000 as the server starts, elbow on
-    an ICS 3.6 one (2); ``ask``: the server asks before freeing (``ics35 web --robot`` without --yes); the pages on
-    the robot's line (no --port given).  The line, the signed-in client and what the server warned of."""
-    line = PtyLine((1, 2), ics36=(2,))
-    line.sim.servo(1).command_position(7000)
+def standing_arm(
+    tmp_path: Path, ask: bool = True, ics36: tuple[int, ...] = (2,), absent: tuple[int, ...] = ()
+) -> Iterator[tuple[PtyLine, TestClient, list[str]]]:
+    """An arm on a serial line (a pty): shoulder on servo 1, elbow on servo 2 (ICS 3.6 unless ``ics36`` says not),
+    each holding 7000 as the server starts but those ``absent`` (unplugged); ``ask``: the server asks before freeing
+    (``ics35 web --robot`` without --yes); the pages on the robot's line (no --port given).  The line, the
+    signed-in client and what the server warned of."""
+    line = PtyLine((1, 2), ics36=ics36)
+    for servo in line.sim.servos:
+        servo.command_position(7000)
+    for servo_id in absent:
+        line.sim.remove_servo(servo_id)
     path = tmp_path / "arm.toml"
     path.write_text(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
@@ -862,10 +869,17 @@ def test_a_robot_on_a_serial_line_frees_no_ics35_joint_at_the_servers_start_unti
     with standing_arm(tmp_path) as (line, client, warned):
         view = client.get("/api/robot").json()
         assert not view["open"] and view["start_free_choice"] == {"joints": ["shoulder"]}, view
-        assert view["error"] == "not opened, nothing freed: the robot waits for the answer below", view
+        asks = "the robot is not open, nothing freed: it waits for the answer to its question (below)"
+        assert view["error"] == asks, view
+        # What else is asked of the robot meanwhile is refused in the page's words, not the terminal's.
+        for path, data in (("/api/robot/free", {}), ("/api/robot/stop", {}), ("/api/robot/motion", {"enabled": True})):
+            refused = post(client, path, data)
+            said = refused.json()["error"]
+            assert refused.status_code == 409 and "its question" in said and "--yes" not in said, (path, said)
+            assert "Reconnect" not in said, (path, said)
         # (nothing was sent to them: none is shown free, as if it were not bearing the robot)
         assert [(j["target"], j["uncommanded"]) for j in view["joints"]] == [(None, True)] * 2, view
-        said = "not opened, nothing freed: joint shoulder speaks ICS 3.5, whose position is read only by freeing it"
+        said = "the robot was not opened, nothing freed: joint shoulder speaks ICS 3.5, whose position is read only by"
         assert len(warned) == 2 and said in warned[0] and "--start-pose" in warned[0], warned
         assert "instead: the Robot page's question, answered, brings them" in warned[1], warned
         assert client.get("/api/status").json()["robot_line"] is None
@@ -881,6 +895,8 @@ def test_a_robot_on_a_serial_line_frees_no_ics35_joint_at_the_servers_start_unti
         assert opened.json()["start_free_choice"] is None and opened.json()["error"] is None
         assert line.sim.servo(1).free
         assert client.get("/api/status").json()["robot_line"] == "arm"  # (the pages follow it there)
+        # (its first open: not "reconnected"; what it freed, said)
+        assert opened.json()["outcome"] == "opened: shoulder freed to read where it stands", opened.json()
 
 
 @pytest.mark.pty
@@ -892,6 +908,31 @@ def test_the_robot_pages_answer_covers_only_the_joints_it_named(tmp_path: Path) 
         assert line.sim.servo(1).target == 7000
         bad = post(client, "/api/robot/reopen", {"start_free": "shoulder"})
         assert bad.status_code == 400 and "start_free" in bad.json()["error"], bad.json()
+        assert line.sim.servo(1).target == 7000
+
+
+@pytest.mark.pty
+def test_the_robot_pages_answers_add_up(tmp_path: Path) -> None:
+    # (a servo answering only after the first answer: asked about alone, and the robot opens)
+    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
+        assert client.get("/api/robot").json()["start_free_choice"] == {"joints": ["shoulder"]}
+        elbow = VirtualServo(2)  # (the elbow's servo plugged in, holding)
+        elbow.command_position(7000)
+        line.sim.add_device(elbow)
+        again = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()
+        assert not again["open"] and again["start_free_choice"] == {"joints": ["elbow"]}, again
+        assert line.sim.servo(1).target == 7000 and line.sim.servo(2).target == 7000  # (nothing freed yet)
+        opened = post(client, "/api/robot/reopen", {"start_free": ["elbow"]}).json()
+        assert opened["open"] and line.sim.servo(1).free and line.sim.servo(2).free, opened
+
+
+@pytest.mark.pty
+def test_a_line_lost_while_the_question_waits_is_said_not_hidden_behind_it(tmp_path: Path) -> None:
+    with standing_arm(tmp_path) as (line, client, _):
+        line.sim.unplug()
+        answered = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()
+        assert not answered["open"] and answered["start_free_choice"] is None, answered
+        assert answered["error"].startswith("the robot's lines could not be opened"), answered
         assert line.sim.servo(1).target == 7000
 
 

@@ -61,6 +61,7 @@ class RobotSession:
         self.ask_before_freeing = ask_before_freeing
         self.start_free_choice: list[str] | None = None
         self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free
+        self._freed_to_read: list[str] = []  # those the last open freed to read them (asked about, or --yes)
         self._opened_once = False
         self.path = path
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
@@ -137,7 +138,8 @@ class RobotSession:
                 raise InvalidArgument(
                     f"start_free must be a list of joint names (those the question named), not {start_free!r}"
                 )
-            self._free_confirmed = frozenset(self.description.known_joints(start_free))
+            # (added to the joints named before: a servo that answered only since is asked about alone)
+            self._free_confirmed |= frozenset(self.description.known_joints(start_free))
         stopped = self._stopped_robot
         if stopped is not None:
             # Its lost line reopens by itself once its port is back (within a reconnect delay of it): until then
@@ -168,9 +170,16 @@ class RobotSession:
         pose = dict(self.start_pose)
         if lost_joints == "hold":
             pose.update(self.lost_pose)
+        first = not self._opened_once
         await self._open(pose)
         robot = self.robot
-        if robot is not None:
+        if robot is not None and first:  # (its first open, after a failed start or the open's question)
+            freed = self._freed_to_read
+            one = len(freed) == 1
+            self.outcome = f"opened: {', '.join(freed)} freed to read where {'it stands' if one else 'they stand'}"
+            if not freed:
+                self.outcome = "opened"
+        elif robot is not None:
             # The state line said how the robot was before the line went ("joints hold where they stand", a
             # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
             lost = ", ".join(self.lost_pose)
@@ -194,7 +203,9 @@ class RobotSession:
         unconfirmed: list[str] = []  # the joints this open would have freed unasked: it freed nothing
 
         def may_start_free(joints: list[str]) -> bool:
-            unconfirmed[:] = [j for j in self.description.on_hardware(joints) if j not in self._free_confirmed]
+            asked = self.description.on_hardware(joints)
+            unconfirmed[:] = [j for j in asked if j not in self._free_confirmed]
+            self._freed_to_read = asked if not unconfirmed else []
             return not unconfirmed
 
         if self.ask_before_freeing and not self._opened_once:
@@ -227,9 +238,10 @@ class RobotSession:
                     for task in (asked, ended, lost):
                         task.cancel()
         except (IcsError, OSError) as exc:
+            # (the question stands only while it is what keeps the robot closed: a line missing is said instead)
+            self.start_free_choice = unconfirmed or None
             if unconfirmed:
-                self.start_free_choice = unconfirmed
-                self.error = _not_freed(unconfirmed)
+                self.error = "the robot is not open, nothing freed: it waits for the answer to its question (below)"
             else:
                 self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
         finally:
@@ -410,8 +422,7 @@ class RobotSession:
         return {
             "name": self.description.name or self.path,
             "open": robot is not None,
-            # (the open's question says the rest, where error's words, meant for the terminal, point to this page)
-            "error": "not opened, nothing freed: the robot waits for the answer below" if asking else error,
+            "error": error,
             "reconnect_ready": ready,  # (the page says it in place of an early Reconnect's refusal)
             "warnings": self.warnings if robot is not None else [],
             "cycle": None if frame is None else frame.cycle,
@@ -551,6 +562,8 @@ class RobotSession:
         if self.robot is None:
             if self._stopped_robot is not None:  # (kept: its other lines stream on, see free)
                 todo = "Free all lets go of those on the lines still there; Reconnect opens the robot again"
+            elif self.start_free_choice:
+                todo = "the answer to its question opens it (Free all then lets them go)"
             else:
                 todo = "Reconnect opens the robot again (Free all then lets them go)"
             raise UnsafeOperation(
@@ -623,13 +636,15 @@ class RobotSession:
         )
 
 
-def _not_freed(joints: list[str]) -> str:
-    """Why the robot is not open: ``joints`` would start free, which the page has not confirmed."""
+def not_freed_at_start(joints: list[str]) -> str:
+    """What the server's terminal says of a robot its start left closed: ``joints`` would start free, which the
+    page has not confirmed."""
     one = len(joints) == 1
     named = f"joint{'' if one else 's'} {', '.join(joints)}"
     return (
-        f"not opened, nothing freed: {named} {'speaks' if one else 'speak'} ICS 3.5, whose position is read only by"
-        f" freeing {'it' if one else 'them'}, and a robot standing on {'it' if one else 'them'} falls: hold the robot,"
+        f"the robot was not opened, nothing freed: {named} {'speaks' if one else 'speak'} ICS 3.5, whose position is"
+        f" read only by freeing {'it' if one else 'them'}, and a robot standing on {'it' if one else 'them'} falls:"
+        " hold the robot,"
         " then answer the question on the Robot page (or start the server with --start-pose stating where"
         f" {'it stands' if one else 'they stand'}, or --yes)"
     )

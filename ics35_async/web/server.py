@@ -29,7 +29,7 @@ from ..running import _after_stop
 from ..terminal import ctrl_c_typed
 from .api import ROUTES
 from .config import LineConfig
-from .joints import RobotSession
+from .joints import RobotSession, not_freed_at_start
 from .security import TokenGuard, is_loopback
 from .session import MISSING_AT_CONNECT, LineSession
 
@@ -120,7 +120,9 @@ def create_app(
                 for text in [*robot.flat_out_lines(), *robot.warnings]:
                     warn(text)
             if robot.error and warn is not None:
-                warn(robot.error)
+                # (the page's words point to its question; the terminal's say what it is and the other ways out)
+                asking = robot.start_free_choice
+                warn(not_freed_at_start(asking) if asking else robot.error)
                 if line_from_robot:
                     # (the robot's lines are there, only not opened, where the Robot page asks its question)
                     then = (

@@ -1024,8 +1024,9 @@ function onRobot(r) {
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
   $("#robot-play").disabled = !r.motion_enabled || !$("#robot-motion-file").files.length;
   const tripped = r.joints.filter((j) => j.tripped);
-  $("#robot-state").textContent = (r.playing ? `playing ${r.playing}` : r.outcome || "idle") +
-    (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
+  // (the watch reads an open robot's joints: of one not open, nothing is known to be within limits)
+  const watch = !r.open ? "" : tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits";
+  $("#robot-state").textContent = (r.playing ? `playing ${r.playing}` : r.outcome || (r.open ? "idle" : "not open")) + watch;
   const body = $("#robot-table tbody");
   if (body.children.length !== r.joints.length) {
     // The slider and the angles first: on a phone the columns to the right scroll out of sight.
@@ -1065,9 +1066,10 @@ function onRobot(r) {
     // A tripped joint's Reset: the person says its cause is dealt with (a current trip of a freed joint stands
     // until then). Rebuilt only when the stop changes: a button replaced under the pointer would lose its click.
     const safety = row.querySelector(".safety");
-    if (safety.dataset.stop !== (j.tripped || "")) {
-      safety.dataset.stop = j.tripped || "";
-      safety.replaceChildren(j.tripped || "ok", ...(j.tripped ? [" ", el("button", { class: "reset-trip", title: "the cause is dealt with: targets and motions for this joint go again", onclick: () => resetTrip(j.name).catch(() => {}) }, "Reset")] : []));
+    const stop = j.tripped || (r.open ? "" : "-");  // ("-": not watched, the robot not open)
+    if (safety.dataset.stop !== stop) {
+      safety.dataset.stop = stop;
+      safety.replaceChildren(j.tripped || (r.open ? "ok" : "-"), ...(j.tripped ? [" ", el("button", { class: "reset-trip", title: "the cause is dealt with: targets and motions for this joint go again", onclick: () => resetTrip(j.name).catch(() => {}) }, "Reset")] : []));
     }
     safety.className = j.tripped ? "safety bad" : "safety";
     const slider = row.querySelector("input[type=range]");
