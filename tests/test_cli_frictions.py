@@ -248,6 +248,9 @@ def test_an_unknown_option_of_a_command_taking_negative_numbers_is_named_as_such
 
 def test_negative_values_still_reach_move_and_set(cli: Any) -> None:
     assert cli("--port", "sim://?ids=1", "move", "1", "-30", "--deg").code == 0
+    for value in ("-.5", "-1e1", "-2.5"):  # (any number Python reads)
+        moved = cli("--port", "sim://?ids=1", "move", "1", value, "--deg")
+        assert moved.code == 0, (value, moved.err)
     refused = cli("--port", "sim://?ids=1", "set", "1", "speed", "-5")
     assert refused.code == ExitCode.USAGE and "No such option" not in refused.err, refused.err
 
@@ -263,8 +266,9 @@ def test_negative_values_still_reach_move_and_set(cli: Any) -> None:
         ["eeprom", "set", "-1", "speed=100"],
         ["monitor", "-1"],
         ["set-id", "-1"],
+        ["eeprom", "restore", "-1", "backup.json"],
     ],
-    ids=["info", "get", "free", "free-second", "dump", "eeprom-set", "monitor", "set-id"],
+    ids=["info", "get", "free", "free-second", "dump", "eeprom-set", "monitor", "set-id", "restore"],
 )
 def test_a_negative_id_is_said_to_be_no_servo_id(cli: Any, args: list[str]) -> None:
     # Click took it for an option: "No such option '-1'", for an ID out of range.
@@ -276,8 +280,15 @@ def test_a_negative_id_is_said_to_be_no_servo_id(cli: Any, args: list[str]) -> N
 
 @pytest.mark.parametrize(
     "args",
-    [["info", "-x", "1"], ["info", "1", "-1x"], ["eeprom", "dump", "1", "-q"], ["free", "-z", "1"]],
-    ids=["info-letter", "info-mixed", "dump", "free"],
+    [
+        ["info", "-x", "1"],
+        ["info", "1", "-1x"],
+        ["eeprom", "dump", "1", "-q"],
+        ["free", "-z", "1"],
+        ["free", "-v", "--bogus", "1"],  # (-v counts: it takes no value, and --bogus is no word of its)
+        ["info", "-v", "--bogus", "1"],
+    ],
+    ids=["info-letter", "info-mixed", "dump", "free", "free-after-count", "info-after-count"],
 )
 def test_an_unknown_short_option_of_a_command_taking_ids_is_still_named_as_such(cli: Any, args: list[str]) -> None:
     result = cli("--port", "sim://?ids=1", *args)
@@ -352,9 +363,12 @@ def test_set_id_given_an_old_id_too_says_it_takes_the_new_one_only(cli: Any) -> 
     assert result.code == ExitCode.USAGE, result.err
     said = " ".join(result.err.split())
     assert "takes the new ID only" in said and "ics35 set-id 5" in said, said
-    # (a line option's value after the ID is no second ID)
-    renamed = cli("--port", "sim://?ids=1", "set-id", "5", "--baud", "115200", "--yes")
-    assert renamed.code == 0 and "takes the new ID only" not in renamed.err, renamed.err
+    # (a line option's value after the ID is no second ID, given apart, joined to its letter, or after flags run
+    # together with it; -v counts, taking no value)
+    for words in (["5", "--baud", "115200"], ["5", "-b115200"], ["-yb", "115200", "5"], ["-v", "5"]):
+        renamed = cli("--port", "sim://?ids=1", "set-id", *words, "--yes")
+        assert renamed.code == 0 and "takes the new ID only" not in renamed.err, (words, renamed.err)
+    assert "takes the new ID only" in cli("set-id", "-v", "1", "5").err
 
 
 def test_an_id_list_that_is_not_one_is_refused_with_one_example(cli: Any) -> None:

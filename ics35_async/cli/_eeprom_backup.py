@@ -404,7 +404,10 @@ def restore_flag_advice(settings: Settings, plan: EepromPlan) -> str:
     return f"restore writes the backup's flags as saved: to keep them, answer no, or set them again after: {again}"
 
 
-@click.command(short_help="Write backups made by `eeprom dump`, checked first (every diff shown, one question).")
+@click.command(
+    cls=NegativeNumbersCommand,
+    short_help="Write backups made by `eeprom dump`, checked first (every diff shown, one question).",
+)
 @click.argument("args", metavar="[ID] FILE|DIR", nargs=-1, required=True)
 @click.option("--restore-id", is_flag=True, help="Also write the ID stored in FILE (default: keep the servo's ID).")
 @click.option(

@@ -104,8 +104,9 @@ class NegativeNumbersCommand(click.Command):
         """The words of ``args`` that are arguments, not options nor their values; an unknown option is refused."""
         params = self.get_params(ctx)
         known = [name for p in params for name in (*p.opts, *p.secondary_opts)]
+        # (an option that takes a value: not a flag, nor one that counts, as -v does)
+        valued = {name for p in params if isinstance(p, click.Option) and not (p.is_flag or p.count) for name in p.opts}
         letters = {name[1] for name in known if len(name) == 2 and name[0] == "-" and name[1] != "-"}
-        valued = {name for p in params if isinstance(p, click.Option) and not p.is_flag for name in p.opts}
         arguments: list[str] = []
         words = iter(args)
         for arg in words:
@@ -116,16 +117,33 @@ class NegativeNumbersCommand(click.Command):
                 next(words, None)  # (its value, whatever it looks like: -o -x.json)
                 continue
             name = arg.partition("=")[0] if arg[:2] == "--" else arg
-            if name[:1] != "-" or name == "-" or _NEGATIVE.fullmatch(name):
+            if name[:1] != "-" or name == "-" or _is_number(name):
                 arguments.append(arg)
                 continue
-            if name in known or (name[:2] != "--" and (set(name[1:]) <= letters or name[:2] in valued)):
-                continue  # (an option; -yq: flags run together; -p/dev/ttyUSB0: a value joined to its option)
+            if name in known:
+                continue
+            if name[:2] != "--" and name[1] in letters:
+                # One-letter options run together (-yq), the last may take a value: the rest of the word
+                # (-b115200, -yb115200) or, if none is left, the next word (-yb 115200).
+                for at, letter in enumerate(name[1:], 1):
+                    if f"-{letter}" in valued:
+                        if at == len(name) - 1:
+                            next(words, None)
+                        break
+                    if letter not in letters:
+                        raise click.NoSuchOption(f"-{letter}", ctx=ctx)
+                continue
             raise click.NoSuchOption(name, possibilities=difflib.get_close_matches(name, known), ctx=ctx)
         return arguments
 
 
-_NEGATIVE = re.compile(r"-\d+(\.\d*)?")
+def _is_number(word: str) -> bool:
+    """``-30``, ``-.5``, ``-1e2``: a number (the argument a command's own check then judges), not an option."""
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
 
 
 SERVO_ID = ServoIdType()
