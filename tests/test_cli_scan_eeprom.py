@@ -329,7 +329,7 @@ def test_a_scan_of_some_ids_that_finds_none_names_them_and_points_at_the_others(
     said = " ".join(result.err.split())
     # (and that other servos answer: the line, its rate and its power are right, the IDs asked are not, as doctor
     # says it; the power hints were given)
-    assert "no servo among 20-31 answered on sim://?ids=1-6 at 115200 baud, but a servo at another ID does" in said
+    assert "no servo among 20-31 answered on sim://?ids=1-6 at 115200 baud, but servos at other IDs answer" in said
     assert "scan lists the IDs on the line; pass those to --ids" in said and "6-12 V" not in said, said
     assert "tries every ID at every baud rate" not in said, said
 

@@ -15,7 +15,7 @@ from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate
 from ics35_async.errors import BusClosed, EchoMismatch, InvalidArgument, PartialReply, PortLost, ReplyError
 from ics35_async.policies import ALL_BAUDS, Line, echo_setting_wrong, probe_ids, scan, servo_rates
-from ics35_async.protocol import Param, Position, ReadEeprom, ReadParam
+from ics35_async.protocol import Param, Position, ReadEeprom, ReadId, ReadParam
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 from tests.support.engine_support import Recorded, Wire, ready_engine
@@ -94,6 +94,19 @@ async def test_a_scan_of_some_ids_that_finds_none_asks_the_line_once_whether_a_d
     # Every ID asked: nothing more to learn.
     (rate,) = (await scan(opener(lines([])), bauds=[115200], read_eeprom=False)).rates
     assert rate.nobody and not rate.elsewhere
+    # Fewer than the ID read's own threshold, one of them the odd device's: its ID read's answer is kept (the
+    # report's note names it), not taken for another ID's.
+    (rate,) = (await scan(opener(odd), bauds=[115200], ids=[3, 4], read_eeprom=False)).rates
+    assert not rate.elsewhere and rate.only_id_read and rate.id_answer == 3
+
+
+async def test_a_port_lost_as_a_scan_of_some_ids_asks_for_other_ids_is_the_report_s_loss(lines: Any) -> None:
+    # (not "no servo answered", with the power hints)
+    puller = UnplugsWhenAsked(2, ReadId)
+    sim = lines([puller])
+    puller.line = sim
+    report = await scan(opener(sim), bauds=[115200], ids=[20], read_eeprom=False)
+    assert isinstance(report.lost, (PortLost, BusClosed)), report
 
 
 async def test_silent_ids_are_not_retried_even_when_the_bus_retries(lines: Any) -> None:

@@ -114,7 +114,7 @@ def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) ->
     # What the servos of a lost line do now: teach had them free (not "a holding joint stays stiff", with a command
     # to free them).
     said = " ".join(err.split())
-    assert "joints a, b on the lost line were free when it went: nothing holds them" in said, said
+    assert "joints a, b on the lost line were free when the line went: nothing holds them" in said, said
     assert "stiff" not in said and "free 1-2" not in said, said
     assert str(taught) in " ".join(err.split())
     keyframes = json.loads(taught.read_text())["keyframes"]
@@ -144,7 +144,7 @@ def test_calibrate_ends_at_once_when_the_port_is_lost(tmp_path: Path, step: str)
     # Said once, in the error (it came first on a line of its own too), and of joints calibrate had free, no "a
     # holding joint stays stiff".
     assert "lost" in err and said.count("nothing written") == 1 and said.count("error:") == 1, err
-    assert "joints a, b on the lost line were free when it went: nothing holds them" in said, said
+    assert "joints a, b on the lost line were free when the line went: nothing holds them" in said, said
     assert "stiff" not in said, said
     assert robot.read_text() == ROBOT.format(port=port) and not Path(f"{robot}.bak").exists()
 

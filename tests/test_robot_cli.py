@@ -1613,7 +1613,7 @@ def test_teach_with_a_line_lost_names_only_the_servos_it_freed_on_that_line(
     assert result.code == ExitCode.COMMUNICATION, result.err
     said = " ".join(result.err.split())
     # (teach had freed hip, the one joint it opened there: nothing to free, no command that would free the others)
-    assert "joint hip on the lost line was free when it went: nothing holds them" in said, said
+    assert "joint hip on the lost line was free when the line went: nothing holds it" in said, said
     assert "ics35 --port" not in said.partition("hint:")[2], said
     assert said.endswith("the other lines' joints were left free"), said
     assert sims.servo("neck").free  # (so they were)

@@ -901,7 +901,7 @@ def test_a_robot_on_a_serial_line_frees_no_ics35_joint_at_the_servers_start_unti
 
 @pytest.mark.pty
 def test_the_robot_pages_answer_covers_only_the_joints_it_named(tmp_path: Path) -> None:
-    # A joint the question did not name (its servo answered only since) is asked about before it is freed.
+    # An answer naming another joint (the elbow: ICS 3.6, read without freeing) frees nothing of the shoulder.
     with standing_arm(tmp_path) as (line, client, _):
         refused = post(client, "/api/robot/reopen", {"start_free": ["elbow"]})
         assert not refused.json()["open"] and refused.json()["start_free_choice"] == {"joints": ["shoulder"]}
@@ -933,6 +933,11 @@ def test_a_line_lost_while_the_question_waits_is_said_not_hidden_behind_it(tmp_p
         answered = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()
         assert not answered["open"] and answered["start_free_choice"] is None, answered
         assert answered["error"].startswith("the robot's lines could not be opened"), answered
+        assert line.sim.servo(1).target == 7000
+        # Back: a plain Reconnect asks again (that answer was for that open: the robot may stand otherwise now).
+        line.sim.replug()
+        again = post(client, "/api/robot/reopen", {}).json()
+        assert not again["open"] and again["start_free_choice"] == {"joints": ["shoulder"]}, again
         assert line.sim.servo(1).target == 7000
 
 

@@ -290,16 +290,23 @@ def _at_another_rate(settings: Settings, ids: Sequence[int], rate: int) -> CliEr
 
 
 def answered_at_another_id(
-    settings: Settings, ids: Sequence[int], where: str, at_id: int | None = None, rate: str = ""
+    settings: Settings,
+    ids: Sequence[int],
+    where: str,
+    at_id: int | None = None,
+    rate: str = "",
+    *,
+    several: bool = False,
 ) -> CliError:
     """The error for IDs none of which answered on a line where a device at another ID does (an ID read: ``at_id``,
-    its ID where one device gave it; ``rate``: " at N baud" where several rates were asked): the line, its rate and
-    its power are right, the IDs asked are not."""
+    its ID where one device gave it; ``several``: devices answered it at once; ``rate``: " at N baud" where several
+    rates were asked): the line, its rate and its power are right, the IDs asked are not."""
     asked = f"{no_servo_among(ids)} answered on {where}"
     if at_id is None:
+        others = "servos at other IDs answer" if several else "a servo at another ID does"
         return CliError(
             ExitCode.NO_REPLY,
-            f"{asked}, but a servo at another ID does{rate}",
+            f"{asked}, but {others}{rate}",
             f"{settings.command_line('scan')} lists the IDs on the line; pass those to --ids",
         )
     return CliError(

@@ -319,7 +319,7 @@ def lost_line_hint(
         others = (
             f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
         )
-        return f"{named} free when it went: nothing holds them{others}"
+        return f"{named} free when the line went: nothing holds {'it' if len(names) == 1 else 'them'}{others}"
     free = "ics35 free all -p PORT"
     if line is not None:
         here = dataclasses.replace(

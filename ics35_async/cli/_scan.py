@@ -234,6 +234,8 @@ def scan(
     Sends only harmless reads: an ID read per rate (a rate where nothing answers
     it is done), then a stretch read per ID, then each servo's EEPROM.  A servo
     that answers at several rates is listed once, at the rate its EEPROM names.
+    With --ids, a rate where none of them answers gets an ID read (if not already
+    asked) to tell whether a servo at another ID is there.
     Exit code 4 when nothing answers.  A port lost part-way: the servos found
     before it are listed, then the error.
     """
@@ -276,7 +278,9 @@ def scan(
         elsewhere = next((r for r in report.rates if r.elsewhere), None)
         if elsewhere is not None:  # (`--ids 20-31` on a line of servos 1-6: as doctor says it)
             rate = f" at {elsewhere.baud} baud" if len(scanned) > 1 else ""
-            raise answered_at_another_id(named, ids, where, elsewhere.id_answer, rate)
+            # (no ID given back: several devices answered the ID read at once)
+            at_id = elsewhere.id_answer
+            raise answered_at_another_id(named, ids, where, at_id, rate, several=at_id is None)
         failure = nothing_answered(settings, where, silent=report.silent)
         if not every_id(ids) and not (report.silent and settings.echo):
             # Told to try some IDs: those are named, and the hint that scan tries every ID says how.

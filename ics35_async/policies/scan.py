@@ -367,6 +367,11 @@ async def scan(
     malformed port name: nothing about the rates).  ``on_probe`` hears each
     probe's outcome as it comes.
 
+    With ``ids`` fewer than every ID, a rate where none of them answers (nor comes
+    back garbled) gets one ID read, unless the probes asked it already: a device
+    answering it at an ID not asked sets ``elsewhere`` on that rate's report
+    (it costs one ID command's allowance where nothing answers).
+
     A line lost part-way (its port gone, the bus closed) does not cost what was
     found before it: the report lists those servos (an EEPROM not read by then
     is ``None``) and holds the loss in ``lost``; the rates after it are not
@@ -443,11 +448,13 @@ async def _look_elsewhere(line: Line, rate: RateScan, wanted: list[int]) -> Rate
     if answer is None:
         try:
             answer = await _id_read(line)
-        except (BusClosed, PortLost):
-            return rate  # (the loss shows in the next rate's opening, or not at all: this was advice)
+        except (BusClosed, PortLost) as exc:
+            return dataclasses.replace(rate, lost=exc)  # (the scan's loss, as a probe's: not "nobody answered")
     if isinstance(answer, ReplyError):
         return rate if nothing_came_back(answer) else dataclasses.replace(rate, elsewhere=True)
-    return rate if answer in wanted else dataclasses.replace(rate, elsewhere=True, id_answer=answer)
+    if answer in wanted:  # (a device answering only the ID read: the report's note names it)
+        return dataclasses.replace(rate, id_answer=answer)
+    return dataclasses.replace(rate, elsewhere=True, id_answer=answer)
 
 
 async def _read_images(

@@ -240,6 +240,8 @@ class RobotSession:
         except (IcsError, OSError) as exc:
             # (the question stands only while it is what keeps the robot closed: a line missing is said instead)
             self.start_free_choice = unconfirmed or None
+            if not unconfirmed:  # (an answer is for the open it was given to: the robot may stand otherwise later)
+                self._free_confirmed = frozenset()
             if unconfirmed:
                 self.error = "the robot is not open, nothing freed: it waits for the answer to its question (below)"
             else:
