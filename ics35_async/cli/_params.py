@@ -84,12 +84,12 @@ class ListType(click.ParamType[list[int]]):
 
 class NegativeNumbersCommand(click.Command):
     """A command whose arguments may be written as negative numbers: values (``move 1 -30 --deg``, ``set 1 speed
-    -5``), and IDs, whose own check then says what is wrong (``info -1``: "servo ID must be 0..31, got -1").
+    -5``), and IDs, whose own check then says what is wrong (``info -1``: "'-1' is not a servo ID (0..31)").
 
     Click takes ``-30`` for an option ("No such option '-1'") unless unknown options are let through, and then it
-    lets a mistyped option through too: ``move --bogus`` said "'--bogus' is not a servo ID".  So only a negative
-    number is let through: any other word that starts with a dash and is not one of the command's options (or a
-    run of its one-letter flags) is refused as click refuses it elsewhere, with its near names.
+    lets a mistyped option through too: ``move --bogus`` said "'--bogus' is not a servo ID".  So only a number is
+    let through: any other word that starts with a dash and is not one of the command's options (or a run of its
+    one-letter flags) is refused as click refuses it elsewhere, with its near names.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
