@@ -368,9 +368,10 @@ async def scan(
     probe's outcome as it comes.
 
     With ``ids`` fewer than every ID, a rate where none of them answers (nor comes
-    back garbled) gets one ID read, unless the probes asked it already: a device
-    answering it at an ID not asked sets ``elsewhere`` on that rate's report
-    (it costs one ID command's allowance where nothing answers).
+    back garbled) gets one ID read, unless the probes' own ID read was answered
+    (by one device: it gave its ID): a device answering it at an ID not asked sets
+    ``elsewhere`` on that rate's report (it costs one ID command's allowance where
+    nothing answers).
 
     A line lost part-way (its port gone, the bus closed) does not cost what was
     found before it: the report lists those servos (an EEPROM not read by then
@@ -443,7 +444,8 @@ def _none_there(rate: RateScan, echo: bool) -> bool:
 async def _look_elsewhere(line: Line, rate: RateScan, wanted: list[int]) -> RateScan:
     """``rate`` with ``elsewhere`` where a device at an ID not in ``wanted`` answers the ID read (several at once
     answer it garbled): the line and its rate are right, the IDs asked are not.  One ID read, asked unless the
-    probe's own answered (a device answering it as an ID that was probed is ``only_id_read``: not elsewhere)."""
+    probes' own was answered with an ID (a device answering it as an ID that was probed is ``only_id_read``: not
+    elsewhere)."""
     answer: int | ReplyError | None = rate.id_answer
     if answer is None:
         try:
