@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import itertools
 import json
+import os
 import time
 import warnings
 from collections.abc import Iterator, Mapping
@@ -930,12 +931,14 @@ def test_the_robot_pages_answers_add_up(tmp_path: Path) -> None:
 def test_a_line_lost_while_the_question_waits_is_said_not_hidden_behind_it(tmp_path: Path) -> None:
     with standing_arm(tmp_path) as (line, client, _):
         line.sim.unplug()
+        wait_for(lambda: not os.path.lexists(line.path))  # (the pty's server follows the unplug in a thread of its own)
         answered = post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()
         assert not answered["open"] and answered["start_free_choice"] is None, answered
         assert answered["error"].startswith("the robot's lines could not be opened"), answered
         assert line.sim.servo(1).target == 7000
         # Back: a plain Reconnect asks again (that answer was for that open: the robot may stand otherwise now).
         line.sim.replug()
+        wait_for(lambda: os.path.exists(line.path))  # (and makes its link again)
         again = post(client, "/api/robot/reopen", {}).json()
         assert not again["open"] and again["start_free_choice"] == {"joints": ["shoulder"]}, again
         assert line.sim.servo(1).target == 7000
