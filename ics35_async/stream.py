@@ -37,7 +37,17 @@ INF = math.inf
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
 STREAM_OPTIONS = frozenset(
-    {"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history", "watch", "offline"}
+    {
+        "offline_after",
+        "probe_interval",
+        "free_on_close",
+        "on_close",
+        "on_resume",
+        "history",
+        "watch",
+        "offline",
+        "hold_offline",
+    }
 )
 DEPRECATED_STREAM_OPTIONS = frozenset({"free_on_close"})  # (taken, never suggested for a misspelt option)
 WATCH = -1
@@ -97,6 +107,7 @@ class StreamOptions(LineStreamOptions, total=False):
 
     watch: Iterable[int]
     offline: Iterable[int]
+    hold_offline: bool
 
 
 class Stream(FrameIterator[Frame]):
@@ -131,6 +142,12 @@ class Stream(FrameIterator[Frame]):
             of the cycle, first probed one ``probe_interval`` after the start, instead of each failing
             ``offline_after`` cycles first at its whole reply allowance; one that answers comes back as any
             offline ID does.
+        hold_offline: the IDs in ``offline`` with no target are probed with a parameter read too, which moves
+            nothing, and come back held (see :attr:`held`), sent nothing, once they answer (default ``False``: such
+            an ID is probed with its free, which reads it).  For a program that asks before freeing a servo (the
+            free is an ICS 3.5 servo's only position read): one that kept its power and its target while its
+            replies were lost (a loose signal wire) would drop what it bears.  A target, free or watch the program
+            sets for one meanwhile ends this.
 
     Raises:
         InvalidArgument: a bad, duplicate or missing ID (in ``ids``, ``watch`` or ``offline``: theirs must be
@@ -157,6 +174,7 @@ class Stream(FrameIterator[Frame]):
         on_resume: OnResume = "wait",
         watch: Iterable[int] = (),
         offline: Iterable[int] = (),
+        hold_offline: bool = False,
     ) -> None:
         id_list = units.check_ids("ids", ids)
         if not id_list:
@@ -175,6 +193,7 @@ class Stream(FrameIterator[Frame]):
             raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
         if on_resume not in ON_RESUME:
             raise InvalidArgument(f"on_resume must be one of {', '.join(ON_RESUME)}, not {on_resume!r}")
+        units.check_bool("hold_offline", hold_offline)
         self.bus = bus
         self.ids: tuple[int, ...] = tuple(id_list)
         self.rate_hz = rate_hz
@@ -207,6 +226,8 @@ class Stream(FrameIterator[Frame]):
         self._told_unwatchable: set[int] = set()
         # Why each slot is held ("" when not): no command until the program sets its target (see held).
         self._held = [""] * n
+        # Slots offline from the start with no target that come back held rather than freed (see hold_offline).
+        self._hold_return = [False] * n
         # Orders the program's target changes against the hooks that change a slot's hold or offline state
         # (a driver's I/O thread): a free landing in a rejoin must not end up held, sent nothing.  Never held
         # while calling into the bus (the driver's lock is taken first by the hooks' callers).
@@ -276,6 +297,7 @@ class Stream(FrameIterator[Frame]):
         for k in self._offline_at_start:
             self._offline[k] = True
             self._fail_run[k] = offline_after
+            self._hold_return[k] = hold_offline
         self.watch([self.ids[k] for k in watched])
         for k in self._offline_at_start:
             self._renew_job(k)
@@ -362,6 +384,10 @@ class Stream(FrameIterator[Frame]):
                     self._held[k] = ""
                     unsent.add(k)
                     kick = True  # a stream waiting with every ID held has work again
+                if self._hold_return[k] and lift_holds:  # (the program's own word for it: its probe follows it)
+                    self._hold_return[k] = False
+                    if self._targets[k] == p:  # (free already: the probe becomes the free itself)
+                        self._job_changed(k)
                 if self._targets[k] != p:
                     self._targets[k] = p
                     if frozen and k in frozen:
@@ -419,6 +445,7 @@ class Stream(FrameIterator[Frame]):
                     self._watch_heard.discard(k)  # (heard by this watch, not an earlier one)
                 self._targets[k] = WATCH
                 self._held[k] = ""
+                self._hold_return[k] = False
                 self._unsent.discard(k)  # (a watched ID gets no command)
                 if k in self._frozen:
                     self._stale.add(k)
@@ -433,12 +460,13 @@ class Stream(FrameIterator[Frame]):
 
         An offline ID with a position target is probed with a parameter read, which moves nothing: its servo
         may have restarted (a brown-out: free, where the load left it) and its old target would throw it there
-        at full speed.  Once it answers it comes back held or free (see :meth:`_rejoin`).  Free and watched IDs
-        are probed with their own command: neither moves a servo.
+        at full speed.  Once it answers it comes back held or free (see :meth:`_rejoin`).  So is one offline from
+        the start under ``hold_offline``, whose free would drop what its servo bears.  Free and watched IDs are
+        probed with their own command: neither moves a servo.
         """
         sid, target = self.ids[k], self._targets[k]
         reader: protocol.ReadPosition | protocol.ReadParam
-        if target == WATCH or (self._offline[k] and target != protocol.FREE):
+        if target == WATCH or (self._offline[k] and (target != protocol.FREE or self._hold_return[k])):
             reader = protocol.ReadPosition(sid) if target == WATCH else protocol.ReadParam(sid, protocol.Param.STRETCH)
             self._readers[k] = reader
             self._jobs[k] = (reader.tx, reader.reply_len, sid)
@@ -641,6 +669,9 @@ class Stream(FrameIterator[Frame]):
                 self._targets[k] = protocol.FREE
             else:
                 self._held[k] = "rejoined"
+        elif self._hold_return[k]:  # (no target yet: its free waits for the program, see hold_offline)
+            self._held[k] = "rejoined"
+        self._hold_return[k] = False
         self._job_changed(k)
 
     def _job_changed(self, k: int) -> None:

@@ -1083,6 +1083,52 @@ def test_a_start_free_not_confirmed_ends_the_open_with_no_joint_freed_or_moved(a
         assert not rig.servo(name).free, name
 
 
+@pytest.mark.parametrize("asks", [True, False], ids=["asks", "does-not-ask"])
+def test_a_joint_silent_at_the_open_is_not_freed_when_it_answers_where_the_program_asks_before_freeing(
+    asks: bool,
+) -> None:
+    # The web's question named the joints that answered; one whose servo kept its power and target while its replies
+    # were lost (a loose signal wire) was freed by its probe, the free command, the moment it answered again: a
+    # standing robot's knee went limp unasked.  Where the program asks (confirm_start_free), such a joint is probed
+    # with a read and comes back held, sent nothing, as a joint with a target that went offline does.
+    rig = make_rig()
+    lower = rig.sim("lower")
+    knee = lower.remove_servo(JOINTS["knee"]["id"])  # (silent at the open)
+    knee.command_position(8000)  # (holding: its replies lost, not its power)
+
+    async def frames(n: int = 1) -> None:
+        for _ in range(n):
+            latest = robot_of[0].latest
+            await robot_of[0].wait_frame(-1 if latest is None else latest.cycle)
+
+    robot_of: list[Robot] = []
+
+    async def body(robot: Robot) -> tuple[dict[str, str], bool]:
+        robot_of.append(robot)
+        assert "knee" in robot.unreached
+        lower.add_device(knee)
+        with anyio.fail_after(GUARD):
+            while "knee" in robot.unreached:
+                await frames()
+        await frames(5)  # (cycles after its return: a free command would have gone out by now)
+        held, free = dict(robot.held), knee.free
+        if asks:
+            await robot.free(["knee"])  # (the program's decision: now it goes free)
+            with anyio.fail_after(GUARD):
+                while not knee.free:
+                    await frames()
+        return held, free
+
+    options: dict[str, Any] = {"probe_interval": 0.02}
+    if asks:
+        options["confirm_start_free"] = lambda joints: True
+    held, freed = run_robot(rig, body, **options)
+    if asks:
+        assert held.get("knee") == "rejoined" and not freed, held
+    else:  # (as ever for a program that does not ask: it is read by freeing, as at an open)
+        assert "knee" not in held and freed, held
+
+
 def test_a_start_free_confirmed_opens_as_without_the_question_and_none_is_asked_with_nothing_to_free() -> None:
     rig = make_rig(ics36=[1])
     asked: list[list[str]] = []

@@ -443,6 +443,40 @@ async def test_an_id_given_offline_that_answers_its_probe_comes_back_as_any_offl
     assert sim.servo(2).position == start_position(2)  # not moved
 
 
+@pytest.mark.parametrize("then", ["nothing", "free", "watch"])
+async def test_hold_offline_brings_a_free_id_given_offline_back_held_unless_the_program_said_otherwise(
+    then: str,
+) -> None:
+    # Its free, the probe and an ICS 3.5 servo's only read, dropped what a servo that had kept its power and target
+    # (its replies lost) bore, for a program that asks before freeing: probed by a read, it is held, sent nothing.
+    # A free or watch the program sets meanwhile is its own word: the probe follows it.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    if then == "watch":  # (an ICS 3.6 servo: watched, it answers its position read)
+        sim.remove_servo(2)
+        sim.add_device(VirtualServo(2, position=start_position(2), ics36=True))
+    sim.servo(2).command_position(start_position(2))  # (holding)
+    async with streaming(sim, ids, offline=[2], hold_offline=True, probe_interval=0.02) as (_, stream):
+        if then == "free":
+            stream.free([2])
+        elif then == "watch":
+            stream.watch([2])
+        back = (await frames_until(stream, lambda f: 2 not in f.offline))[-1]
+        for _ in range(3):
+            await next_frame(stream)
+        if then == "nothing":
+            assert back.held == {2} and stream.held == {2: "rejoined"} and not sim.servo(2).free
+        elif then == "free":
+            await frames_until(stream, lambda f: sim.servo(2).free)
+        else:
+            assert stream.held == {} and not sim.servo(2).free
+    sent = {t.command for t in sim.log_since(0) if t.servo_id == 2}
+    expected = {"nothing": {"read_stretch"}, "free": {"free"}, "watch": {"read_position"}}[then]
+    assert sent == expected, sent
+    with pytest.raises(InvalidArgument, match="hold_offline"):
+        open_bus(sim, **FAST).stream(ids, hold_offline="yes")  # type: ignore[arg-type]
+
+
 async def test_a_stalled_event_loop_does_not_fail_a_healthy_servo() -> None:
     ids = list(range(8))
     sim = make_sim(ids)

@@ -85,7 +85,8 @@ class RobotOptions(BusOptions, total=False):
     For a program that asks a person first, as ``ics35 play`` does on a serial line: a robot standing on ICS 3.5
     servos falls as they are freed.  A plain function runs in the event loop, which waits for it (the lines are
     open, nothing streams yet); one that waits for something else is a coroutine function.  (A joint whose servo
-    did not answer starts offline, and free once it answers: the open's warnings name it.)"""
+    did not answer starts offline: once it answers it is held, sent nothing (see ``Robot.held``), until the program
+    sets its target or frees it, where without this option it is freed to be read; the open's warnings name it.)"""
     start_free: bool
     """Every joint not in ``start_pose`` starts free, ICS 3.6 ones too, read by the free command (which answers
     with the position on both protocols), and the open asks no servo its protocol (default ``False``).  For a
@@ -257,6 +258,8 @@ async def _robot_session(
                 rate_hz=spec.rate_hz,
                 watch=[j.id for j in description.joints_on(line) if j.name in readable],
                 offline=[j.id for j in description.joints_on(line) if j.name in unheard],
+                # (a program that asks before freeing is asked again for those: back, they are held, sent nothing)
+                hold_offline=confirm_start_free is not None,
                 offline_after=offline_after,
                 probe_interval=probe_interval,
                 # The streams' close is the robot's close: with "free", each line's stream sends every
