@@ -752,6 +752,34 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
 
 
+def test_a_joint_silent_at_the_robots_open_comes_back_held_with_its_free_button_not_freed(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # Its probe, the free command, freed it the moment it answered, unasked: a knee whose signal wire was loose
+    # while it held the robot up went limp.  It comes back held, sent nothing, and the page's Free frees it.
+    line = PtyLine((1, 2))
+    for servo in line.sim.servos:
+        servo.command_position(7000)
+    knee = line.sim.remove_servo(2)
+    robot = tmp_path / "legs.toml"
+    robot.write_text(
+        f'[lines.legs]\nport = "{line.path}"\n[joints.hip]\nline = "legs"\nid = 1\n'
+        '[joints.knee]\nline = "legs"\nid = 2\n'
+    )
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        expect(p.locator("#robot-start-free-question")).to_contain_text("Joint hip speaks ICS 3.5")
+        p.click("#robot-start-free")
+        row = p.locator('tr[data-joint="knee"]')
+        expect(row.locator(".angle")).to_have_text("offline")
+        line.sim.add_device(knee)  # (its replies back: it had kept its power and target)
+        expect(row.locator(".target")).to_contain_text("- (held: rejoined, sent nothing)")
+        assert knee.target == 7000
+        row.get_by_role("button", name="Free").click()
+        until(lambda: knee.free, "the knee was not freed by its Free button")
+        expect(row.locator(".target")).to_have_text("free")
+
+
 def test_reconnect_pressed_before_the_line_is_back_is_told_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
     # Pressed too early, Reconnect's "line arm is still lost" stayed on after the port was back; the banner over
     # every page said the port reconnects "as soon as it returns", where the robot waits for Reconnect.

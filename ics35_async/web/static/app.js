@@ -1055,7 +1055,8 @@ function onRobot(r) {
     const target = row.querySelector(".target");
     // Uncommanded (only read, its torque as found; or its servo offline): no target went out, whatever it was
     // asked ("-", as `ics35 play` shows it); another joint with none was sent its free.
-    const shown = (j.uncommanded ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    // (held with no target, as a joint silent at the open comes back: nothing was sent, it is not "free")
+    const shown = (j.uncommanded || (j.held && j.target === null) ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
     if (target.dataset.shown !== shown) {
       target.dataset.shown = shown;
       target.replaceChildren(shown, ...(j.held ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
