@@ -543,6 +543,15 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-plus")).to_be_disabled()
 
 
+def one_line_robot(folder: Path, line: PtyLine, name: str, joints: dict[str, int], more: str = "") -> Path:
+    """``folder/NAME.toml``: a robot of ``joints`` (name: servo ID, in that order) on ``line``, its line named
+    ``name``; ``more``: keys of the last joint's table, then any other tables."""
+    path = folder / f"{name}.toml"
+    tables = "".join(f'[joints.{joint}]\nline = "{name}"\nid = {sid}\n' for joint, sid in joints.items())
+    path.write_text(f'[lines.{name}]\nport = "{line.path}"\n{tables}{more}')
+    return path
+
+
 @contextlib.contextmanager
 def arm_robot_page(
     browser: Browser, folder: Path, safety: str = "", ics36: tuple[int, ...] = ()
@@ -550,11 +559,7 @@ def arm_robot_page(
     """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90; the IDs ``ics36`` speaking ICS 3.6) on a line
     of its own with ``safety`` (the robot file's table), served by ``ics35 web --robot``: its Robot page."""
     line = PtyLine((1, 2), ics36)
-    robot = folder / "arm.toml"
-    robot.write_text(
-        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n' + safety
-    )
+    robot = one_line_robot(folder, line, "arm", {"shoulder": 1, "elbow": 2}, "min = -90\nmax = 90\n" + safety)
     with web_server_page(browser, line, ["--robot", str(robot), "--yes"]) as p:
         p.click("#robot-link")
         yield line, p
@@ -691,11 +696,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
     # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).
     line = PtyLine((1, 2), ics36=(1,))
     line.sim.servo(2).command_position(7000)  # (bearing the arm as the server starts)
-    robot = tmp_path / "arm.toml"
-    robot.write_text(
-        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\n'
-    )
+    robot = one_line_robot(tmp_path, line, "arm", {"shoulder": 1, "elbow": 2})
     with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
         # The server's start freed nothing: the Robot page asks before it frees elbow to read it (ICS 3.5).
@@ -761,11 +762,7 @@ def test_a_joint_silent_at_the_robots_open_comes_back_held_with_its_free_button_
     for servo in line.sim.servos:
         servo.command_position(7000)
     knee = line.sim.remove_servo(2)
-    robot = tmp_path / "legs.toml"
-    robot.write_text(
-        f'[lines.legs]\nport = "{line.path}"\n[joints.hip]\nline = "legs"\nid = 1\n'
-        '[joints.knee]\nline = "legs"\nid = 2\n'
-    )
+    robot = one_line_robot(tmp_path, line, "legs", {"hip": 1, "knee": 2})
     with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
         expect(p.locator("#robot-start-free-question")).to_contain_text("Joint hip speaks ICS 3.5")
