@@ -97,8 +97,11 @@ class NegativeNumbersCommand(click.Command):
         super().__init__(*args, **kwargs)
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
-        self.arguments_given(ctx, args)  # (refuses an unknown option)
+        self.check_arguments(ctx, self.arguments_given(ctx, args))  # (an unknown option refused first)
         return super().parse_args(ctx, args)
+
+    def check_arguments(self, ctx: click.Context, arguments: list[str]) -> None:
+        """A command's own look at its arguments (options and their values left out) before click parses them."""
 
     def arguments_given(self, ctx: click.Context, args: list[str]) -> list[str]:
         """The words of ``args`` that are arguments, not options nor their values; an unknown option is refused."""

@@ -308,18 +308,15 @@ def lost_line_hint(
     joint in, when the port was lost as the robot opened: the command had done nothing with them yet;
     ``holding``: the joints of a line that may hold something when it went, None where that is not known)."""
     line = _line_of(description, exc)
+    others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
+    if opening_left is not None:
+        others = f"; the port was lost as the robot opened: {opening_left}"
     held = None if line is None or holding is None or opening_left is not None else holding(line.name)
     if held == [] and line is not None:  # (all of them free: calibrate's, teach's; nothing to free)
         names = [j.name for j in description.joints_on(line.name)]
-        named = (
-            f"joint {names[0]} on the lost line was"
-            if len(names) == 1
-            else f"joints {', '.join(names)} on the lost line were"
-        )
-        others = (
-            f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
-        )
-        return f"{named} free when the line went: nothing holds {'it' if len(names) == 1 else 'them'}{others}"
+        one = len(names) == 1
+        named = f"joint {names[0]} on the lost line was" if one else f"joints {', '.join(names)} on the lost line were"
+        return f"{named} free when the line went: nothing holds {'it' if one else 'them'}{others}"
     free = "ics35 free all -p PORT"
     if line is not None:
         here = dataclasses.replace(
@@ -332,9 +329,6 @@ def lost_line_hint(
         )
         # Its joints' IDs, not "all": the 32 IDs' absent ones would end it "did not go free", exit code 4.
         free = here.command_line("free", ids_argument(j.id for j in description.joints_on(line.name)))
-    others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
-    if opening_left is not None:
-        others = f"; the port was lost as the robot opened: {opening_left}"
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
         f" power or, with the line back, get: {free}{others}"

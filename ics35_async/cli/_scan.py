@@ -320,16 +320,15 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
 class _NewIdOnly(NegativeNumbersCommand):
     """``set-id NEW``: given an old ID too (``set-id 1 5``, as other tools take them), it says why NEW is enough."""
 
-    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+    def check_arguments(self, ctx: click.Context, arguments: list[str]) -> None:
         # (counted before click's parser, whose words for an extra argument are its own)
-        numbers = [a for a in self.arguments_given(ctx, args) if a.isdigit()]
+        numbers = [a for a in arguments if a.isdigit()]
         if len(numbers) >= 2:
             raise click.UsageError(
                 f"set-id takes the new ID only: the one servo on the line is found whatever its ID now "
                 f"(ics35 set-id {numbers[-1]})",
                 ctx,
             )
-        return super().parse_args(ctx, args)
 
 
 @click.command(name="set-id", cls=_NewIdOnly)

@@ -175,10 +175,8 @@ class RobotSession:
         robot = self.robot
         if robot is not None and first:  # (its first open, after a failed start or the open's question)
             freed = self._freed_to_read
-            one = len(freed) == 1
-            self.outcome = f"opened: {', '.join(freed)} freed to read where {'it stands' if one else 'they stand'}"
-            if not freed:
-                self.outcome = "opened"
+            where = "it stands" if len(freed) == 1 else "they stand"
+            self.outcome = f"opened: {', '.join(freed)} freed to read where {where}" if freed else "opened"
         elif robot is not None:
             # The state line said how the robot was before the line went ("joints hold where they stand", a
             # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
@@ -240,11 +238,10 @@ class RobotSession:
         except (IcsError, OSError) as exc:
             # (the question stands only while it is what keeps the robot closed: a line missing is said instead)
             self.start_free_choice = unconfirmed or None
-            if not unconfirmed:  # (an answer is for the open it was given to: the robot may stand otherwise later)
-                self._free_confirmed = frozenset()
             if unconfirmed:
                 self.error = "the robot is not open, nothing freed: it waits for the answer to its question (below)"
-            else:
+            else:  # (an answer is for the open it was given to: the robot may stand otherwise later)
+                self._free_confirmed = frozenset()
                 self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
         finally:
             self.robot = self._stopped_robot = None
