@@ -777,6 +777,34 @@ def test_a_joint_silent_at_the_robots_open_comes_back_held_with_its_free_button_
         expect(row.locator(".target")).to_have_text("free")
 
 
+def test_reconnect_asks_before_freeing_a_joint_that_came_back_held(browser: Browser, tmp_path: Path) -> None:
+    # The knee, silent at the open, came back held (sent nothing: its servo bears what it bore).  The line lost
+    # and back, Reconnect read it by freeing it, unasked; now the page asks, as at the robot's first open.
+    line = PtyLine((1, 2))
+    knee = line.sim.remove_servo(2)
+    knee.command_position(7000)
+    robot = one_line_robot(tmp_path, line, "legs", {"hip": 1, "knee": 2})
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        p.click("#robot-start-free")
+        row = p.locator('tr[data-joint="knee"]')
+        expect(row.locator(".angle")).to_have_text("offline")
+        line.sim.add_device(knee)
+        expect(row.locator(".target")).to_contain_text("- (held: rejoined, sent nothing)")
+        line.sim.unplug()
+        expect(p.locator("#robot-reopen")).to_be_visible()
+        line.sim.replug()
+        expect(p.locator("#robot-error")).to_contain_text("press Reconnect")
+        p.click("#robot-reopen")
+        expect(p.locator("#robot-start-free-question")).to_contain_text("Joint knee speaks ICS 3.5")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        assert knee.target == 7000 and not knee.free  # (the hip, free since the open, is not asked about)
+        p.click("#robot-start-free")
+        until(lambda: knee.free, "the knee was not freed by the page's answer")
+        expect(p.locator("#robot-state")).to_contain_text("reconnected; knee freed to read where it stands")
+        expect(p.locator("#robot-start-free-choice")).to_be_hidden()
+
+
 def test_reconnect_pressed_before_the_line_is_back_is_told_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
     # Pressed too early, Reconnect's "line arm is still lost" stayed on after the port was back; the banner over
     # every page said the port reconnects "as soon as it returns", where the robot waits for Reconnect.

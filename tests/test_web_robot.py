@@ -944,6 +944,78 @@ def test_a_line_lost_while_the_question_waits_is_said_not_hidden_behind_it(tmp_p
         assert line.sim.servo(1).target == 7000
 
 
+def lose_and_replug_pty(client: TestClient, line: PtyLine) -> None:
+    """Pull a pty line out until the Robot page says the robot stopped, then plug it back in."""
+    line.sim.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    line.sim.replug()
+    wait_for(lambda: os.path.exists(line.path))  # (the pty's server makes its link again in a thread of its own)
+
+
+@pytest.mark.pty
+def test_reconnect_asks_before_freeing_a_joint_held_since_it_answered_again_with_no_target(tmp_path: Path) -> None:
+    # The elbow's servo, silent at the open (a loose signal wire), came back held, sent nothing: it bears what it
+    # bore.  The line lost and back, Reconnect read it by freeing it, unasked, as if it had been free.
+    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
+        assert post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()["open"]
+        elbow = VirtualServo(2)
+        elbow.command_position(7000)
+        line.sim.add_device(elbow)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
+        lose_and_replug_pty(client, line)
+        asked = post(client, "/api/robot/reopen", {}).json()
+        # (the shoulder, freed at the open and free since, is not asked about again: freeing it changes nothing)
+        assert not asked["open"] and asked["start_free_choice"] == {"joints": ["elbow"]}, asked
+        assert elbow.target == 7000 and not elbow.free
+        opened = post(client, "/api/robot/reopen", {"start_free": ["elbow"]}).json()
+        assert opened["open"] and elbow.free, opened
+
+
+@pytest.mark.pty
+def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_before_freeing(tmp_path: Path) -> None:
+    # The shoulder held a target when the line went (Reconnect asks whether it still holds it); the elbow came back
+    # held with none (the open asks before freeing it).  Answered in turn, each answer is kept, not asked again.
+    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
+        assert post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()["open"]
+        post(client, "/api/robot/motion", {"enabled": True})
+        assert post(client, "/api/robot/move", {"pose": {"shoulder": 20}, "duration": 0.1}).status_code == 200
+        wait_for(lambda: line.sim.servo(1).target == degrees_to_position(20))
+        elbow = VirtualServo(2)
+        elbow.command_position(7000)
+        line.sim.add_device(elbow)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
+        lose_and_replug_pty(client, line)
+        assert client.get("/api/robot").json()["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder"]}
+        asked = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()
+        assert not asked["open"] and asked["start_free_choice"] == {"joints": ["elbow"]}, asked
+        assert asked["reconnect_choice"] is None, asked  # (answered: the page asks only what is left)
+        assert elbow.target == 7000 and not elbow.free
+        opened = post(client, "/api/robot/reopen", {"start_free": ["elbow"]}).json()
+        assert opened["open"] and elbow.free, opened
+        assert opened["outcome"] == "reconnected; shoulder holds its last target; elbow freed to read where it stands"
+        time.sleep(0.1)
+        assert line.sim.servo(1).target == degrees_to_position(20) and not line.sim.servo(1).free
+
+
+@pytest.mark.pty
+def test_a_joint_silent_at_a_reconnect_comes_back_held_not_freed(tmp_path: Path) -> None:
+    # The robot's first open asked before freeing, so a joint silent then came back held; one silent at
+    # Reconnect's open was freed the moment its servo answered (the free was its probe).
+    with standing_arm(tmp_path, ics36=()) as (line, client, _):
+        assert post(client, "/api/robot/reopen", {"start_free": ["shoulder", "elbow"]}).json()["open"]
+        elbow = line.sim.servo(2)
+        assert elbow.free  # (freed to read it, as the page's answer said)
+        lose_and_replug_pty(client, line)
+        line.sim.remove_servo(2)  # (its signal wire loose now; its power on: it holds 7000 meanwhile)
+        elbow.command_position(7000)
+        opened = post(client, "/api/robot/reopen", {}).json()
+        assert opened["open"] and opened["start_free_choice"] is None, opened
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["offline"])
+        line.sim.add_device(elbow)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
+        assert elbow.target == 7000 and not elbow.free
+
+
 @pytest.mark.pty
 def test_told_not_to_ask_the_server_opens_the_robot_at_its_start_freeing_its_ics35_joints(tmp_path: Path) -> None:
     # (`ics35 web --robot FILE --yes`)

@@ -56,11 +56,15 @@ class RobotSession:
         # Until a robot has been open, an ICS 3.5 joint on a serial line that would start free (read by its free
         # command: a robot standing on it falls) waits for the page's answer: the open frees nothing and says which
         # (start_free_choice), and Reconnect with those joints named opens it (ask_before_freeing=False, the CLI's
-        # --yes: not asked).  Once a robot was open, what starts free at a reopen was free already, or the person
-        # said so at Reconnect (lost_joints="free").
+        # --yes: not asked).  At a reopen the same: a joint free when the robot ended, or one the person said starts
+        # free at Reconnect (lost_joints="free"), is not asked about again; any other is (one held since its servo
+        # answered again, with no target: its servo may be bearing the robot).  And a joint silent at an open comes
+        # back held, not freed, once it answers (open_robot's confirm_start_free).
         self.ask_before_freeing = ask_before_freeing
         self.start_free_choice: list[str] | None = None
-        self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free
+        self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free (this open)
+        self._free_known: frozenset[str] = frozenset()  # those free when the robot ended, or said free at Reconnect
+        self._reopen_said: list[str] = []  # what Reconnect's answer did to the lost line's joints, for its outcome
         self._freed_to_read: list[str] = []  # those the last open freed to read them (asked about, or --yes)
         self._opened_once = False
         self.path = path
@@ -167,22 +171,30 @@ class RobotSession:
         await self.close()
         # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
         # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
+        if self.lost_pose:
+            # The answer stands until the robot opens (the open's question may keep it closed meanwhile).
+            # The state line said how the robot was before the line went ("joints hold where they stand", a
+            # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
+            lost, one = ", ".join(self.lost_pose), len(self.lost_pose) == 1
+            if lost_joints == "hold":
+                self.start_pose = {**self.start_pose, **self.lost_pose}
+                self._reopen_said = [f"{lost} {'holds its last target' if one else 'hold their last targets'}"]
+            else:
+                self._free_known |= frozenset(self.lost_pose)
+                self._reopen_said = [f"{lost} {'starts' if one else 'start'} free"]
+            self.lost_pose = {}
         pose = dict(self.start_pose)
-        if lost_joints == "hold":
-            pose.update(self.lost_pose)
         first = not self._opened_once
         await self._open(pose)
         robot = self.robot
+        freed = self._freed_to_read
+        where = "it stands" if len(freed) == 1 else "they stand"
         if robot is not None and first:  # (its first open, after a failed start or the open's question)
-            freed = self._freed_to_read
-            where = "it stands" if len(freed) == 1 else "they stand"
             self.outcome = f"opened: {', '.join(freed)} freed to read where {where}" if freed else "opened"
         elif robot is not None:
-            # The state line said how the robot was before the line went ("joints hold where they stand", a
-            # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
-            lost = ", ".join(self.lost_pose)
-            done = "hold their last targets" if lost_joints == "hold" else "start free"
-            said = [f"{lost} {done}"] if lost else []
+            said, self._reopen_said = self._reopen_said, []
+            if freed:  # (those the page's answer named: the others were free already, or said free above)
+                said.append(f"{', '.join(freed)} freed to read where {where}")
             free_now, self._free_at_reopen = self._free_at_reopen, []
             if free_now:
                 # Free all was asked while their line was lost: an ICS 3.6 joint read at the open keeps its torque.
@@ -199,18 +211,21 @@ class RobotSession:
         # reconnect: a lost line leaves the others streaming (see _stop_at_loss), its own reopened once it is back.
         options = {**self.options, "reconnect": True}
         unconfirmed: list[str] = []  # the joints this open would have freed unasked: it freed nothing
+        self._freed_to_read = []
 
         def may_start_free(joints: list[str]) -> bool:
             asked = self.description.on_hardware(joints)
-            unconfirmed[:] = [j for j in asked if j not in self._free_confirmed]
-            self._freed_to_read = asked if not unconfirmed else []
+            unconfirmed[:] = [j for j in asked if j not in self._free_confirmed and j not in self._free_known]
+            self._freed_to_read = [j for j in asked if j not in self._free_known] if not unconfirmed else []
             return not unconfirmed
 
-        if self.ask_before_freeing and not self._opened_once:
+        if self.ask_before_freeing:
             options["confirm_start_free"] = may_start_free
         try:
             async with open_robot(self.description, on_close="hold", start_pose=start_pose, **options) as robot:
                 self._opened_once, self.start_free_choice = True, None
+                # (each answer was for this open: a later one asks again of what is not known free then)
+                self._free_confirmed = self._free_known = frozenset()
                 for stop in self.kept_trips:  # (before anyone can move it: motion is off until the page's switch)
                     # Told as a "free" stop: the joint is free already, and "stop" would free the others too.
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
@@ -274,6 +289,9 @@ class RobotSession:
         targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
         self.last_uncommanded = robot.uncommanded
+        # Freed and free since: Reconnect frees it again to read it without asking (that changes nothing).
+        unknown = robot.uncommanded | held.keys()  # (held with no target: its servo may bear the robot)
+        self._free_known = frozenset(name for name, target in targets.items() if target is None and name not in unknown)
         # (a line back by itself since keeps its place: its joints are held, sent nothing, until Reconnect)
         self.lost_lines = self._in_order({*self.lost_lines, *robot.lost_lines})
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
