@@ -438,13 +438,19 @@ def test_the_server_frees_a_standing_robots_ics35_joints_at_its_start_only_with_
         with web("--robot", str(robot), *(["--yes"] if yes else [])) as (proc, url):
             base, token = split(url)
             assert get(f"{base}/api/robot", token)[1]["open"] is yes  # (the server has started: the open is over)
+            freed_at_start = line.sim.servo(1).free
+            if not yes:  # the page's answer opens it: the terminal, which said it was not open, says so too
+                assert post(f"{base}/api/robot/reopen", token, {"start_free": ["shoulder"]})[1]["open"]
             proc.send_signal(signal.SIGINT)
             assert proc.wait(10) == 0
-            assert proc.stderr is not None
+            assert proc.stderr is not None, proc.stdout
             err = " ".join(proc.stderr.read().split())
-        assert line.sim.servo(1).free is yes, err
+            out = " ".join(proc.stdout.read().split()) if proc.stdout is not None else ""
+        assert freed_at_start is yes, err
         said = "the robot was not opened, nothing freed: joint shoulder speaks ICS 3.5"
         assert (said in err and "answer the question on the Robot page" in err) is not yes, err
+        opened = "the Robot page's answer opened the robot: shoulder freed to read where it stands"
+        assert (opened in err + out) is not yes, (err, out)
     finally:
         line.close()
 

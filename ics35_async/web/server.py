@@ -104,12 +104,14 @@ def create_app(
     warn: Callable[[str], None] | None = None,
     robot: RobotSession | None = None,
     line_from_robot: bool = False,
+    note: Callable[[str], None] | None = None,
 ) -> Starlette:
     """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`).
 
     The line opens when the server starts; a port that cannot be opened is
     shown on the Line page (and given to ``warn``), where another can be chosen.
     With ``line_from_robot`` the pages start on the robot's first line instead.
+    ``note`` hears of a robot the Robot page opened (the terminal said it was not open, or lost).
     """
 
     @contextlib.asynccontextmanager
@@ -161,6 +163,7 @@ def create_app(
     session.robot = robot
     app.state.session = session
     app.state.robot = robot
+    app.state.note = note
     return app
 
 
@@ -399,7 +402,8 @@ def serve(
     loop: Literal["auto", "asyncio", "uvloop"] = "auto",
 ) -> int:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
-    ``note`` what the server does as it stops (a stop that waits for requests still being answered),
+    ``note`` what the server does as it stops (a stop that waits for requests still being answered) and a robot the
+    Robot page opened,
     ``no_browser_opened`` that ``open_browser`` was asked for and no browser could be opened (a headless machine,
     an ssh session): the address announced is then for the person to open.
 
@@ -430,6 +434,7 @@ def serve(
             warn=warn,
             robot=robot,
             line_from_robot=line_from_robot,
+            note=note,
         )
     )
     url = url_of(sock, token)
