@@ -657,7 +657,18 @@ def test_doctor_asked_ids_nobody_has_says_other_ids_answer_not_that_no_device_do
     assert result.code == ExitCode.NO_REPLY, result.err
     said = " ".join((result.out + result.err).split())
     assert "no servo at ID 9 answered on sim://doctor-other-ids?ids=1-6 at 115200 baud" in said, said
-    assert "a servo at another ID does" in said and "scan lists the IDs" in said and "nor any device" not in said, said
+    assert "servos at other IDs answer" in said and "scan lists the IDs" in said and "nor any device" not in said, said
+
+
+def test_doctor_names_the_id_of_the_one_servo_that_answers_elsewhere(cli: Any) -> None:
+    # (as `scan --ids` does: one servo there answers the ID read with its ID, and the hint asks for it there)
+    result = cli("--port", "sim://doctor-one-other-id?ids=4", "--timeout", "0.05", "doctor", "--ids", "9")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join((result.out + result.err).split())
+    assert "no servo at ID 9 answered on sim://doctor-one-other-id?ids=4 at 115200 baud, but a servo at ID 4 does" in (
+        said
+    ), said
+    assert "--ids 4" in said, said
 
 
 ADAPTER_WORDS = ("lsusb", "ftdi_sio", "latency_timer", "USB vendor 165C", "udev")

@@ -55,9 +55,14 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan, id
     where = f"{settings.port} at {settings.baud} baud"
     if probed.silent and settings.echo:
         return nothing_answered(settings, where, silent=True)
-    if not probed.garbled and not every_id(ids) and await policies.anyone_there(bus):
+    if not probed.garbled and not every_id(ids):
         # (`--ids 9` on a line of servos 1-6: the line and its rate are right, the IDs asked are not)
-        return answered_at_another_id(settings, ids, where)
+        probed = await policies.check_other_ids(bus, probed, ids)
+        if probed.lost is not None:
+            raise probed.lost
+        if probed.elsewhere:
+            at_id = probed.id_answer
+            return answered_at_another_id(settings, ids, where, at_id, several=at_id is None)
     search = policies.RateSearch((settings.baud,))
     if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
         # (advice only: a port that cannot be opened again leaves what was said)

@@ -54,7 +54,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
-from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import anyio
@@ -407,7 +407,7 @@ async def scan(
             rate_blind = not carries_line_settings(getattr(line, "port", None))
             rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe)
             if len(set(wanted)) < len(ALL_IDS) and _none_there(rate, line.echo):
-                rate = await _look_elsewhere(line, rate, wanted)
+                rate = await check_other_ids(line, rate, wanted)
             rates.append(rate)
             lost = rate.lost
             if read_eeprom and lost is None:
@@ -441,11 +441,12 @@ def _none_there(rate: RateScan, echo: bool) -> bool:
     return heard and not (rate.answered or rate.garbled or rate.nobody or rate.echo_evidence or rate.lost)
 
 
-async def _look_elsewhere(line: Line, rate: RateScan, wanted: list[int]) -> RateScan:
-    """``rate`` with ``elsewhere`` where a device at an ID not in ``wanted`` answers the ID read (several at once
-    answer it garbled): the line and its rate are right, the IDs asked are not.  One ID read, asked unless the
-    probes' own was answered with an ID (a device answering it as an ID that was probed is ``only_id_read``: not
-    elsewhere)."""
+async def check_other_ids(line: Line, rate: RateScan, wanted: Collection[int]) -> RateScan:
+    """``rate`` (what :func:`probe_ids` found of ``wanted`` on ``line``: none of them there) with ``elsewhere``
+    where a device at an ID not in ``wanted`` answers the ID read, and ``id_answer`` its ID where one device gave it
+    (several at once answer it garbled): the line and its rate are right, the IDs asked are not.  One ID read,
+    asked unless the probes' own was answered with an ID (a device answering it as an ID that was probed is
+    ``only_id_read``: not elsewhere).  A line lost meanwhile is ``lost``, as a probe's loss is in a scan's report."""
     answer: int | ReplyError | None = rate.id_answer
     if answer is None:
         try:
