@@ -169,8 +169,6 @@ class RobotSession:
                 " or start free ('free': right if they restarted, free and elsewhere)"
             )
         await self.close()
-        # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
-        # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
         if self.lost_pose:
             # The answer stands until the robot opens (the open's question may keep it closed meanwhile).
             # The state line said how the robot was before the line went ("joints hold where they stand", a
@@ -183,6 +181,8 @@ class RobotSession:
                 self._free_known |= frozenset(self.lost_pose)
                 self._reopen_said = [f"{lost} {'starts' if one else 'start'} free"]
             self.lost_pose = {}
+        # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
+        # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
         pose = dict(self.start_pose)
         first = not self._opened_once
         await self._open(pose)
