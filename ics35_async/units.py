@@ -150,8 +150,11 @@ def plain_count(text: str) -> int | None:
     return int(text) if text.isascii() and text.isdigit() else None
 
 
-def parse_ids(text: str) -> list[int]:
+def parse_ids(text: str, *, example: str | None = "3, 1-12 or 0,4,7") -> list[int]:
     """``text`` such as ``"0-31"``, ``"1,3,5-7"`` or ``"1 2 5-7"`` -> the sorted unique IDs it names (none for ``""``).
+
+    ``example``: what the error for an item that is no ID shows how to write (None: none, for a caller that says
+    its own).
 
     Raises:
         InvalidArgument: an item is not an ID or a range, a range runs backwards, or an ID is outside 0..31.
@@ -164,7 +167,9 @@ def parse_ids(text: str) -> list[int]:
         low = plain_count(low_text)
         high = plain_count(high_text) if dash else low
         if low is None or high is None:
-            raise InvalidArgument(f"{part!r} is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7)")
+            raise InvalidArgument(
+                f"{part!r} is not an ID or a range of IDs" + (f" (write e.g. {example})" if example else "")
+            )
         if low > high:
             raise InvalidArgument(f"the range {part!r} runs backwards")
         if not 0 <= low <= high <= 31:

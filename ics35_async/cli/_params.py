@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import difflib
-import re
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -24,7 +23,7 @@ def parse_id_list(text: str) -> list[int]:
     """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else (or nothing)."""
     if text.strip().lower() in ("all", "*"):
         return list(ALL_IDS)
-    ids = parse_ids(text)
+    ids = parse_ids(text, example=None)  # (the option's own hint shows one, with `all`)
     if not ids:
         raise InvalidArgument("no IDs given")
     return ids
@@ -77,9 +76,7 @@ class ListType(click.ParamType[list[int]]):
         try:
             return self._parse(str(value))
         except InvalidArgument as exc:
-            # (the hint's example in place of the library's, which knows nothing of `all`: one example, not two)
-            said = re.sub(r" \(write e\.g\. [^)]*\)$", "", str(exc)) if self._hint else str(exc)
-            self.fail(f"{said}{self._hint}", param, ctx)
+            self.fail(f"{exc}{self._hint}", param, ctx)
 
 
 class NegativeNumbersCommand(click.Command):
