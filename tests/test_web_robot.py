@@ -453,6 +453,19 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     assert status["robot_line"] == "arm" and status["connected"], status
 
 
+def test_a_line_lost_again_does_not_leave_the_last_reconnects_words_on_the_state_line(robot: Any) -> None:
+    # "reconnected; ..." stayed on the state line through the next loss, beside the error that said it was lost.
+    client, line = robot
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    line.replug()
+    assert post(client, "/api/robot/reopen").json()["outcome"].startswith("reconnected")
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    view = client.get("/api/robot").json()
+    assert not view["open"] and view["outcome"] is None, view
+
+
 def lose_and_replug(client: TestClient, line: Any) -> dict[str, Any]:
     """Pull the line, wait until the page says the robot stopped, plug it back; the robot's view."""
     line.unplug()
@@ -590,6 +603,24 @@ def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_ol
         assert elbow["held"] == "rejoined" and elbow["target"] == 40.0 and servo.free, elbow
         assert shoulder["held"] is None, shoulder
         post(client, "/api/robot/free")
+
+
+def test_a_joint_held_with_no_target_is_shown_held_while_a_lost_line_stops_the_robot(tmp_path: Path) -> None:
+    # The knee, silent at the open, came back held, sent nothing (its servo may bear the robot).  Another line lost,
+    # the page showed it "free" until Reconnect, which then asked whether to free it.
+    with two_line_page(tmp_path, lower="ids=1") as (client, upper, lower):
+
+        def knee() -> Any:
+            return client.get("/api/robot").json()["joints"][3]
+
+        wait_for(lambda: knee()["offline"])
+        servo = VirtualServo(2)
+        servo.command_position(7000)
+        lower.add_device(servo)
+        wait_for(lambda: knee()["held"] == "rejoined")
+        upper.unplug()
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+        assert knee()["held"] == "rejoined" and knee()["target"] is None, knee()
 
 
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
@@ -1177,10 +1208,16 @@ def test_free_all_while_a_line_is_lost_frees_the_other_lines_and_names_the_lost_
         view = freed.json()
         said = view["outcome"]
         assert "hip, knee" in said and "may still hold" in said and "neck" not in said, said
+        # When their free goes out, said: the moment the line is back (it said "Reconnect frees them", and a robot
+        # plugged back in went limp before anyone pressed it).
+        assert "they go free the moment the line is back: hold the robot as you plug it in" in said, said
         assert [j["target"] for j in view["joints"]] == [None, None, None, None], view
+        assert [j["free_when_back"] for j in view["joints"]] == [False, False, True, True], view
         # Reconnect follows the freeing: nothing to ask about, and nothing held again.
         assert view["reconnect_choice"] is None, view
         lower.replug()
+        wait_for(lambda: lower.servo(1).free and lower.servo(2).free)  # (as said: before Reconnect)
+        wait_for(lambda: not any(j["free_when_back"] for j in client.get("/api/robot").json()["joints"]))
         reopened = post(client, "/api/robot/reopen")
         assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
         wait_for(lambda: all(s.free for s in (*upper.servos, *lower.servos)))

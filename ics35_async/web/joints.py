@@ -80,6 +80,7 @@ class RobotSession:
         # and those no target reached then (Robot.uncommanded); before any robot is open, every joint: nothing sent
         # (a joint shown "free" there may be holding, bearing the robot)
         self.last_uncommanded: frozenset[str] = frozenset(self.description.joints)
+        self.last_held: dict[str, str] = {}  # and those held then, sent nothing (Robot.held)
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.kept_trips: list[SafetyStop] = []  # the stops the next open's robot is told of (see _carry_on_from)
         self.robot: Robot | None = None
@@ -91,6 +92,7 @@ class RobotSession:
         self._motion_page: str | None = None
         self._page_stop: asyncio.Task[None] | None = None
         self.outcome: str | None = None  # how the last motion ended
+        self._open_said: str | None = None  # the outcome the last open or Reconnect said (see _stop_at_loss)
         # What plays, by name: a motion, or the moves of the sliders (a slider moved while another's move runs
         # leaves that one to finish: the robot gives each joint to the newest move naming it).
         self._jobs: dict[asyncio.Task[None], str] = {}
@@ -203,6 +205,7 @@ class RobotSession:
                 said.append(f"{', '.join(free_now)} freed, as Free all asked")
             self.outcome = "; ".join(["reconnected", *said])
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
+        self._open_said = self.outcome
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
         # No RobotWarning from the open (this task's own context): issued in the server's loop, it would point
@@ -231,7 +234,7 @@ class RobotSession:
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
                 self.robot, self.error, self.warnings = robot, None, list(robot.warnings)
                 self.kept_trips = []
-                self.last_targets, self.last_uncommanded = {}, frozenset()
+                self.last_targets, self.last_uncommanded, self.last_held = {}, frozenset(), {}
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
@@ -272,6 +275,8 @@ class RobotSession:
         # one Reconnect asks about (its servos may have restarted while it was away).
         lines = self.lost_lines = self._in_order(lost)
         self.error = f"{self._stopped_by(lines)}; with the line back, press Reconnect"
+        if self.outcome == self._open_said:  # (how the open went is no longer how it stands; a motion's end is)
+            self.outcome = None
         # Reconnect's question goes with its offer: taken now (the lost line's joints keep their targets through
         # the stop), and again once the other lines have slowed to rest (their targets, where they came to rest).
         self._carry_on_from(robot)
@@ -289,6 +294,7 @@ class RobotSession:
         targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
         self.last_uncommanded = robot.uncommanded
+        self.last_held = held
         # Freed and free since: Reconnect frees it again to read it without asking (that changes nothing).
         unknown = robot.uncommanded | held.keys()  # (held with no target: its servo may bear the robot)
         self._free_known = frozenset(name for name, target in targets.items() if target is None and name not in unknown)
@@ -405,9 +411,9 @@ class RobotSession:
         tripped = {} if robot is None else robot.tripped
         # Sent nothing since their servo answered again (or their line came back), and why: the target they
         # had is not where they are (restarted, free and elsewhere), so the page says so beside it.
-        held = {} if robot is None else robot.held
-        # (the robot a lost line stopped: its targets as they are now, a joint freed since included)
+        # (the robot a lost line stopped: its targets and holds as they are now, a joint freed since included)
         kept = robot or self._stopped_robot
+        held = self.last_held if kept is None else kept.held
         targets = self.last_targets if kept is None else kept.targets
         # No target set ("-": only read, torque as found; or offline), where another joint's None is "free": the
         # robot's rule, as `ics35 play`'s live table follows it.
@@ -431,6 +437,8 @@ class RobotSession:
                     "uncommanded": name in uncommanded,  # (the page shows "-" for its target)
                     "tripped": None if stop is None else str(stop),
                     "held": held.get(name),
+                    # Free all asked while its line is lost: its free goes out the moment the line is back
+                    "free_when_back": name in self._free_at_reopen and kept is not None and name in kept.lost,
                 }
             )
         ready = self._reconnect_ready()
@@ -616,7 +624,8 @@ class RobotSession:
         a motion playing goes on with the others).
 
         Every joint, with the robot stopped by a lost line: those on the lines still there are freed on the wire,
-        the lost line's are named (their servos may still hold) and freed once their line is back (Reconnect).
+        the lost line's are named (their servos may still hold) and go free the moment their line is back (their
+        streams send the free, before Reconnect; Reconnect frees them once more).
         """
         if joint is None:
             await self.stop(ramp=0.0)
@@ -648,8 +657,8 @@ class RobotSession:
         lines = ", ".join(self.lost_lines)
         self.outcome = (
             f"joints free on the lines still there; {names} not reached (line {lines} lost): "
-            f"{'its servo' if one else 'their servos'} may still hold; once the line is back, Reconnect frees "
-            f"{'it' if one else 'them'}"
+            f"{'its servo' if one else 'their servos'} may still hold; {'it goes' if one else 'they go'} free the"
+            " moment the line is back: hold the robot as you plug it in"
         )
 
 

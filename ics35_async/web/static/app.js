@@ -1056,10 +1056,13 @@ function onRobot(r) {
     // Uncommanded (only read, its torque as found; or its servo offline): no target went out, whatever it was
     // asked ("-", as `ics35 play` shows it); another joint with none was sent its free.
     // (held with no target, as a joint silent at the open comes back: nothing was sent, it is not "free")
-    const shown = (j.uncommanded || (j.held && j.target === null) ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
-    if (target.dataset.shown !== shown) {
-      target.dataset.shown = shown;
-      target.replaceChildren(shown, ...(j.held ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
+    // (Free all asked while its line is lost: its servo may hold until the line is back, when its free goes out)
+    const free = j.free_when_back ? `free once line ${j.line} is back` : "free";
+    const shown = (j.uncommanded || (j.held && j.target === null) ? "-" : j.target ?? free) + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    // (its Free button only on an open robot: a stopped one frees nothing but through Free all)
+    if (target.dataset.shown !== shown + r.open) {
+      target.dataset.shown = shown + r.open;
+      target.replaceChildren(shown, ...(j.held && r.open ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
     }
     target.className = j.held ? "target bad" : "target";
     row.querySelector(".temp").textContent = j.temperature_c ?? "-";
