@@ -777,6 +777,20 @@ def test_a_joint_silent_at_the_robots_open_comes_back_held_with_its_free_button_
         expect(row.locator(".target")).to_have_text("free")
 
 
+def test_the_simulator_banner_is_not_shown_over_a_real_robots_question(browser: Browser, tmp_path: Path) -> None:
+    # While the robot waits for its question the pages stand on sim://: the banner over the Robot page said
+    # "nothing here moves real hardware" right above the button that frees the real robot's joints.
+    line = PtyLine((1,))
+    robot = one_line_robot(tmp_path, line, "legs", {"hip": 1})
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        expect(p.locator("#sim-banner")).to_be_visible()  # (the Line page: on sim:// meanwhile)
+        p.click("#robot-link")
+        expect(p.locator("#robot-start-free-question")).to_contain_text("Joint hip speaks ICS 3.5")
+        expect(p.locator("#sim-banner")).to_be_hidden()
+        p.evaluate("location.hash = '#line'")
+        expect(p.locator("#sim-banner")).to_be_visible()
+
+
 def test_reconnect_asks_before_freeing_a_joint_that_came_back_held(browser: Browser, tmp_path: Path) -> None:
     # The knee, silent at the open, came back held (sent nothing: its servo bears what it bore).  The line lost
     # and back, Reconnect read it by freeing it, unasked; now the page asks, as at the robot's first open.
@@ -813,7 +827,10 @@ def test_reconnect_pressed_before_the_line_is_back_is_told_when_it_is_back(brows
         line.sim.unplug()
         expect(p.locator("#robot-reopen")).to_be_visible()
         expect(p.locator("#lost-banner")).to_be_visible()
-        expect(p.locator("#lost-banner")).to_contain_text("then press Reconnect on the Robot page")
+        # (not "it reconnects as soon as the port returns, then press Reconnect": which of the two brings it back?)
+        expect(p.locator("#lost-banner")).to_contain_text(
+            "plug it back in (the line reopens by itself; the robot waits), then press Reconnect on the Robot page"
+        )
         p.click("#robot-reopen")
         expect(p.locator("#message")).to_contain_text("line arm is still lost")
         line.sim.replug()

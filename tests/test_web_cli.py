@@ -451,6 +451,9 @@ def test_the_server_frees_a_standing_robots_ics35_joints_at_its_start_only_with_
         assert (said in err and "answer the question on the Robot page" in err) is not yes, err
         opened = "the Robot page's answer opened the robot: shoulder freed to read where it stands"
         assert (opened in err + out) is not yes, (err, out)
+        # Ctrl-C said nothing of what the server left the robot in (it leaves every joint as it is)
+        left = "the server leaves the robot's joints as they are: joint shoulder was freed to read where it stands"
+        assert left in err + out, (err, out)
     finally:
         line.close()
 

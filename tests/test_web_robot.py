@@ -623,6 +623,20 @@ def test_a_joint_held_with_no_target_is_shown_held_while_a_lost_line_stops_the_r
         assert knee()["held"] == "rejoined" and knee()["target"] is None, knee()
 
 
+def test_enable_motion_beside_a_held_joint_names_the_pages_way_out_not_the_librarys(tmp_path: Path) -> None:
+    # The state line said "set its target once you know where it is", and the slider's move was refused: "Free it".
+    with arm_page(tmp_path, '[safety]\naction = "hold"\n') as (client, line):
+        post(client, "/api/robot/motion", {"enabled": True})
+        servo = line.remove_servo(2)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["offline"])
+        line.add_device(servo)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
+        post(client, "/api/robot/motion", {"enabled": False})
+        said = post(client, "/api/robot/motion", {"enabled": True}).json()["outcome"]
+        assert "elbow left as it is: held, sent nothing" in said and "set its target" not in said, said
+        assert "the Free button in its row" in said, said
+
+
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
     # ID 2 of each line speaks ICS 3.6: read at the start (and again after its line was lost), not asked about.
     joints = (
@@ -1265,8 +1279,14 @@ def test_free_all_on_a_robot_whose_only_line_is_lost_answers_at_once(robot: Any)
     wait_for(lambda: not line.servo(1).free and not line.servo(2).free)
     line.unplug()
     wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    # (a robot of one line has no other lines: its words spoke of them all the same)
+    early = post(client, "/api/robot/reopen").json()["error"]
+    assert "still lost" in early and "other lines" not in early, early
+    stopped = post(client, "/api/robot/stop").json()["error"]
+    assert "lines still there" not in stopped and "Free all" in stopped, stopped
     freed = post(client, "/api/robot/free")
-    assert freed.status_code == 200 and "shoulder, elbow" in freed.json()["outcome"], freed.json()
+    said = freed.json()["outcome"]
+    assert freed.status_code == 200 and said.startswith("shoulder, elbow not reached (line arm lost)"), said
     line.replug()
     assert post(client, "/api/robot/reopen").json()["open"]
     wait_for(lambda: line.servo(1).free and line.servo(2).free)

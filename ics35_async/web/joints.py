@@ -92,6 +92,7 @@ class RobotSession:
         self._motion_page: str | None = None
         self._page_stop: asyncio.Task[None] | None = None
         self.outcome: str | None = None  # how the last motion ended
+        self.left_words: str | None = None  # what the last robot closed left its joints in (Robot.joints_left)
         self._open_said: str | None = None  # the outcome the last open or Reconnect said (see _stop_at_loss)
         # What plays, by name: a motion, or the moves of the sliders (a slider moved while another's move runs
         # leaves that one to finish: the robot gives each joint to the newest move naming it).
@@ -159,9 +160,11 @@ class RobotSession:
                 raise UnsafeOperation("the robot was closed while Reconnect waited for its line")
             if still:
                 named = self._in_order(still)
+                others = len(named) < len(self.description.lines)  # (a robot of one line has none)
                 raise UnsafeOperation(
                     f"{_lines_named(named)} {'is' if len(named) == 1 else 'are'} still lost (the port is not back):"
-                    " plug it back in, then press Reconnect; meanwhile Free all reaches the joints on the other lines"
+                    " plug it back in, then press Reconnect"
+                    + ("; meanwhile Free all reaches the joints on the other lines" if others else "")
                 )
             self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
         if self.lost_pose and lost_joints not in ("hold", "free"):
@@ -321,6 +324,9 @@ class RobotSession:
 
     async def close(self) -> None:
         await self.stop()
+        # (what its streams leave each joint in, from what they sent: words for the server's end, see left_words)
+        kept = self.robot or self._stopped_robot
+        self.left_words = None if kept is None else kept.joints_left()
         holder, self._holder = self._holder, None
         if holder is not None:
             self._closing.set()
@@ -476,6 +482,12 @@ class RobotSession:
         robot = self._robot()
         if enabled:
             left = robot.hold()
+            held = robot.held
+            for name in left.keys() & held.keys():  # (the library's words name its API; the page's way out is a button)
+                left[name] = (
+                    f"held, sent nothing, since its servo answered again ({held[name]}): where it stands is unknown;"
+                    " the Free button in its row frees it to read where it stands"
+                )
             # (the page's state line: not "joints free"; and each joint left as it was, with why)
             self.outcome = "joints hold where they stand" + "".join(
                 f"; {n} left as it is: {w}" for n, w in left.items()
@@ -586,7 +598,8 @@ class RobotSession:
         """
         if self.robot is None:
             if self._stopped_robot is not None:  # (kept: its other lines stream on, see free)
-                todo = "Free all lets go of those on the lines still there; Reconnect opens the robot again"
+                there = " on the lines still there" if len(self.lost_lines) < len(self.description.lines) else ""
+                todo = f"Free all lets go of those{there}; Reconnect opens the robot again"
             elif self.start_free_choice:
                 todo = "the answer to its question opens it (Free all then lets them go)"
             else:
@@ -655,8 +668,9 @@ class RobotSession:
         names = ", ".join(self._free_at_reopen)
         one = len(self._free_at_reopen) == 1
         lines = ", ".join(self.lost_lines)
-        self.outcome = (
-            f"joints free on the lines still there; {names} not reached (line {lines} lost): "
+        others = len(self.lost_lines) < len(self.description.lines)  # (a robot of one line has none)
+        self.outcome = ("joints free on the lines still there; " if others else "") + (
+            f"{names} not reached (line {lines} lost): "
             f"{'its servo' if one else 'their servos'} may still hold; {'it goes' if one else 'they go'} free the"
             " moment the line is back: hold the robot as you plug it in"
         )

@@ -111,7 +111,8 @@ def create_app(
     The line opens when the server starts; a port that cannot be opened is
     shown on the Line page (and given to ``warn``), where another can be chosen.
     With ``line_from_robot`` the pages start on the robot's first line instead.
-    ``note`` hears of a robot the Robot page opened (the terminal said it was not open, or lost).
+    ``note`` hears of a robot the Robot page opened (the terminal said it was not open, or lost), and at the
+    server's end what it leaves the robot's joints in.
     """
 
     @contextlib.asynccontextmanager
@@ -153,6 +154,9 @@ def create_app(
         finally:
             if robot is not None:
                 await robot.close()
+                # (the server leaves every joint as it is, held or free: said, as `play` says what it left)
+                if note is not None and robot.left_words is not None:
+                    note(f"the server leaves the robot's joints as they are: {robot.left_words}")
             await session.close()
 
     app = Starlette(

@@ -120,17 +120,28 @@ function show() {
   else if (page === "servo" && arg === undefined && typedStill()) backToTyped();
   else if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
   if (page === "many") fillManyFields();
+  showSimBanner();
   socketSend();
+}
+
+// The pages' line is simulated: said over every page but a robot's on hardware (whose question, while the pages
+// stand in on sim://, frees real joints: "nothing here moves real hardware" would be false there).
+function showSimBanner() {
+  const s = state.status;
+  if (!s) return;
+  const robotPage = (location.hash.slice(1) || "line").split("/")[0] === "robot";
+  const realRobot = Boolean(s.robot) && s.robot.lines.some((l) => !String(l.port).startsWith("sim://"));
+  $("#sim-banner").hidden = !s.simulator || (robotPage && realRobot);
 }
 
 function showStatus(s) {
   state.status = s;
-  $("#sim-banner").hidden = !s.simulator;
+  showSimBanner();
   showSimHint(s.simulator ? s.robot_line : null);
   $("#lost-banner").hidden = !s.lost;
   // A robot's line comes back by itself, but the robot it stopped waits for the person's Reconnect.
   $("#lost-banner").textContent = s.robot_line
-    ? `The robot's line ${s.robot_line} lost its port: it reconnects as soon as the port returns, then press Reconnect on the Robot page`
+    ? `The robot's line ${s.robot_line} lost its port: plug it back in (the line reopens by itself; the robot waits), then press Reconnect on the Robot page`
     : "The port is lost: reconnecting as soon as it returns";
   showRobotLines(s.robot);
   $("#scan-progress").hidden = !s.scanning;
