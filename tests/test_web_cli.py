@@ -458,6 +458,31 @@ def test_the_server_frees_a_standing_robots_ics35_joints_at_its_start_only_with_
         line.close()
 
 
+@pytest.mark.pty
+def test_the_terminal_says_when_a_lost_line_stops_the_robot(tmp_path: Path) -> None:
+    # The page said so; the terminal, which had said how the robot opened, said nothing.
+    line = PtyLine((1,))
+    try:
+        robot = tmp_path / "arm.toml"
+        robot.write_text(f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+        with web("--robot", str(robot), "--yes") as (proc, url):
+            base, token = split(url)
+            assert get(f"{base}/api/robot", token)[1]["open"]
+            line.sim.unplug()
+            deadline = time.monotonic() + scaled(10.0)
+            while get(f"{base}/api/robot", token)[1]["error"] is None:
+                assert time.monotonic() < deadline, "the robot never said it stopped"
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(10) == 0
+            assert proc.stderr is not None and proc.stdout is not None
+            said = " ".join((proc.stderr.read() + proc.stdout.read()).split())
+        assert f"the robot stopped: line arm ({line.path}) lost its port" in said, said
+        assert "press Reconnect on the Robot page" in said, said
+    finally:
+        line.close()
+
+
 @contextmanager
 def silent_page(base: str, token: str, page: str) -> Iterator[None]:
     """A page named ``page`` whose WebSocket opens, then reads nothing and answers nothing (its network went:

@@ -973,6 +973,17 @@ def test_the_robot_pages_answers_add_up(tmp_path: Path) -> None:
 
 
 @pytest.mark.pty
+def test_a_joint_silent_while_the_question_waits_is_named_beside_it(tmp_path: Path) -> None:
+    # The question named the shoulder alone, and nothing said why the elbow was left out (its servo did not answer)
+    # until the robot had opened.
+    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (_, client, warned):
+        view = client.get("/api/robot").json()
+        assert view["start_free_choice"] == {"joints": ["shoulder"]}, view
+        assert any("joints.elbow" in said and "did not answer" in said for said in view["warnings"]), view
+        assert any("joints.elbow" in said and "did not answer" in said for said in warned), warned
+
+
+@pytest.mark.pty
 def test_a_line_lost_while_the_question_waits_is_said_not_hidden_behind_it(tmp_path: Path) -> None:
     with standing_arm(tmp_path) as (line, client, _):
         line.sim.unplug()

@@ -356,18 +356,7 @@ async def robot_motion(request: Request, session: LineSession) -> Any:
 async def robot_reopen(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
     data = await body(request)
-    was_open = robot.robot is not None
     await robot.reopen(data.get("lost_joints"), data.get("start_free"))
-    note: Callable[[str], None] | None = request.app.state.note
-    if note is not None and not was_open and robot.robot is not None and robot.outcome:
-        # The terminal said the robot was not open (its question, a line missing or lost): it hears it is now.
-        # (its outcome: "opened[: what it freed]" or "reconnected[; what its joints do]")
-        outcome, how = robot.outcome, "answer" if data.get("start_free") is not None else "Reconnect"
-        if outcome.startswith("opened"):
-            what, said = "opened", outcome.removeprefix("opened").removeprefix(": ")
-        else:
-            what, said = "reopened", outcome.partition("; ")[2]
-        note(f"the Robot page's {how} {what} the robot" + (f": {said}" if said else ""))
     # The pages follow the line to the reopened robot (or go to the one they stood in for, the robot not open at
     # the start).
     line = session.robot_line or session.robot_line_to_come

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from typing import Any
 
 from ..bus import Bus
@@ -92,6 +92,7 @@ class RobotSession:
         self._motion_page: str | None = None
         self._page_stop: asyncio.Task[None] | None = None
         self.outcome: str | None = None  # how the last motion ended
+        self.tell: Callable[[str], None] | None = None  # the server's terminal (create_app's note): a lost line
         self.left_words: str | None = None  # what the last robot closed left its joints in (Robot.joints_left)
         self._open_said: str | None = None  # the outcome the last open or Reconnect said (see _stop_at_loss)
         # What plays, by name: a motion, or the moves of the sliders (a slider moved while another's move runs
@@ -192,14 +193,17 @@ class RobotSession:
         first = not self._opened_once
         await self._open(pose)
         robot = self.robot
+        if robot is None:
+            return
         freed = self._freed_to_read
         where = "it stands" if len(freed) == 1 else "they stand"
-        if robot is not None and first:  # (its first open, after a failed start or the open's question)
-            self.outcome = f"opened: {', '.join(freed)} freed to read where {where}" if freed else "opened"
-        elif robot is not None:
-            said, self._reopen_said = self._reopen_said, []
-            if freed:  # (those the page's answer named: the others were free already, or said free above)
-                said.append(f"{', '.join(freed)} freed to read where {where}")
+        said = [] if first else self._reopen_said
+        self._reopen_said = []
+        if freed:  # (at a reopen, those the page's answer named: the others were free already, or said free above)
+            said.append(f"{', '.join(freed)} freed to read where {where}")
+        if first:  # (its first open, after a failed start or the open's question)
+            self.outcome = f"opened: {'; '.join(said)}" if said else "opened"
+        else:
             free_now, self._free_at_reopen = self._free_at_reopen, []
             if free_now:
                 # Free all was asked while their line was lost: an ICS 3.6 joint read at the open keeps its torque.
@@ -209,6 +213,11 @@ class RobotSession:
             self.outcome = "; ".join(["reconnected", *said])
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
         self._open_said = self.outcome
+        if self.tell is not None:
+            # The terminal said the robot was not open (its question, a line missing or lost): it hears it is now.
+            how = "answer" if start_free is not None else "Reconnect"
+            what = f"{'opened' if first else 'reopened'} the robot" + (f": {'; '.join(said)}" if said else "")
+            self.tell(f"the Robot page's {how} {what}")
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
         # No RobotWarning from the open (this task's own context): issued in the server's loop, it would point
@@ -227,8 +236,9 @@ class RobotSession:
 
         if self.ask_before_freeing:
             options["confirm_start_free"] = may_start_free
+        block = open_robot(self.description, on_close="hold", start_pose=start_pose, **options)
         try:
-            async with open_robot(self.description, on_close="hold", start_pose=start_pose, **options) as robot:
+            async with block as robot:
                 self._opened_once, self.start_free_choice = True, None
                 # (each answer was for this open: a later one asks again of what is not known free then)
                 self._free_confirmed = self._free_known = frozenset()
@@ -261,6 +271,8 @@ class RobotSession:
             self.start_free_choice = unconfirmed or None
             if unconfirmed:
                 self.error = "the robot is not open, nothing freed: it waits for the answer to its question (below)"
+                # (what the open warned of: a joint left out of the question, its servo silent, says why)
+                self.warnings = [] if block.robot is None else list(block.robot.warnings)
             else:  # (an answer is for the open it was given to: the robot may stand otherwise later)
                 self._free_confirmed = frozenset()
                 self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
@@ -278,6 +290,8 @@ class RobotSession:
         # one Reconnect asks about (its servos may have restarted while it was away).
         lines = self.lost_lines = self._in_order(lost)
         self.error = f"{self._stopped_by(lines)}; with the line back, press Reconnect"
+        if self.tell is not None:  # (the terminal said how the robot opened: it hears that it stopped)
+            self.tell(f"{self._stopped_by(lines)}; with the line back, press Reconnect on the Robot page")
         if self.outcome == self._open_said:  # (how the open went is no longer how it stands; a motion's end is)
             self.outcome = None
         # Reconnect's question goes with its offer: taken now (the lost line's joints keep their targets through
@@ -455,7 +469,7 @@ class RobotSession:
             "open": robot is not None,
             "error": error,
             "reconnect_ready": ready,  # (the page says it in place of an early Reconnect's refusal)
-            "warnings": self.warnings if robot is not None else [],
+            "warnings": self.warnings if robot is not None or asking else [],
             "cycle": None if frame is None else frame.cycle,
             "motion_enabled": self.motion_enabled,
             "playing": self.playing,

@@ -165,9 +165,10 @@ def create_app(
         lifespan=lifespan,
     )
     session.robot = robot
+    if robot is not None:
+        robot.tell = note
     app.state.session = session
     app.state.robot = robot
-    app.state.note = note
     return app
 
 
