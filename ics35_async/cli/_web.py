@@ -89,7 +89,9 @@ def web(
         )
     line_from_robot = settings.port_defaulted and robot_file is not None
     if line_from_robot:
-        say_labelled("[dim]note:[/dim]", "[dim]no --port given: the pages start on the robot's first line[/dim]")
+        say_labelled(
+            "[dim]note:[/dim]", "[dim]no --port given: the pages work on the robot's first line once it is open[/dim]"
+        )
     elif settings.port_defaulted:
         say_labelled(
             "[dim]note:[/dim]",

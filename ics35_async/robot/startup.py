@@ -566,11 +566,11 @@ async def _check_limits(robot: Robot, lines: _LineAnswers) -> tuple[list[str], s
             source = robot.description.source
             if len(silent) == 1:
                 joint = silent[0]
-                what = f"joints.{joint.name}: servo ID {joint.id} on line {line} did not answer"
+                what = f"joints.{joint.name}: servo ID {joint.id} on line {line} did not answer as the robot opened"
             else:
                 names = ", ".join(joint.name for joint in silent)
                 ids = ", ".join(str(joint.id) for joint in silent)
-                what = f"joints {names} (servo IDs {ids} on line {line}) did not answer"
+                what = f"joints {names} (servo IDs {ids} on line {line}) did not answer as the robot opened"
                 why = f"the first: {why}"
             found.append(f"{source}: {what} ({why}); limits not checked")
 

@@ -134,8 +134,8 @@ def create_app(
                         else "Reconnect on the Robot page, once the robot's lines are there,"
                     )
                     warn(
-                        f"the pages start on {session.config.port} instead: {then} brings them to its first line"
-                        " (or choose a port on the Line page)"
+                        f"until the robot is open the pages work on {session.config.port} (the built-in simulator):"
+                        f" {then} brings them to its first line (or choose a port on the Line page)"
                     )
         try:
             if robot is not None and robot.robot is not None and line_from_robot:
