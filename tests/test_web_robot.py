@@ -453,6 +453,23 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     assert status["robot_line"] == "arm" and status["connected"], status
 
 
+def test_reconnect_holding_the_lost_joints_says_which_did_not_answer(robot: Any) -> None:
+    # "shoulder, elbow hold their last targets", where the elbow's servo was silent at Reconnect.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    assert post(client, "/api/robot/move", {"pose": {"shoulder": 10, "elbow": 20}, "duration": 0.1}).status_code == 200
+    wait_for(lambda: line.servo(2).target == degrees_to_position(20))
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    elbow = line.remove_servo(2)
+    line.replug()
+    said = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["outcome"]
+    assert said == "reconnected; shoulder holds its last target; elbow not answering yet", said
+    line.add_device(elbow)  # (back before it went offline: its target reaches it, as the answer said)
+    wait_for(lambda: not client.get("/api/robot").json()["joints"][1]["offline"])
+    assert elbow.target == degrees_to_position(20) and not elbow.free
+
+
 def test_a_line_lost_again_does_not_leave_the_last_reconnects_words_on_the_state_line(robot: Any) -> None:
     # "reconnected; ..." stayed on the state line through the next loss, beside the error that said it was lost.
     client, line = robot

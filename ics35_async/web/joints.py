@@ -64,7 +64,7 @@ class RobotSession:
         self.start_free_choice: list[str] | None = None
         self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free (this open)
         self._free_known: frozenset[str] = frozenset()  # those free when the robot ended, or said free at Reconnect
-        self._reopen_said: list[str] = []  # what Reconnect's answer did to the lost line's joints, for its outcome
+        self._reopen_answer: tuple[list[str], str] = ([], "")  # the lost line's joints, and Reconnect's answer
         self._freed_to_read: list[str] = []  # those the last open freed to read them (asked about, or --yes)
         self._opened_once = False
         self.path = path
@@ -179,13 +179,11 @@ class RobotSession:
             # The answer stands until the robot opens (the open's question may keep it closed meanwhile).
             # The state line said how the robot was before the line went ("joints hold where they stand", a
             # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
-            lost, one = ", ".join(self.lost_pose), len(self.lost_pose) == 1
             if lost_joints == "hold":
                 self.start_pose = {**self.start_pose, **self.lost_pose}
-                self._reopen_said = [f"{lost} {'holds its last target' if one else 'hold their last targets'}"]
             else:
                 self._free_known |= frozenset(self.lost_pose)
-                self._reopen_said = [f"{lost} {'starts' if one else 'start'} free"]
+            self._reopen_answer = (list(self.lost_pose), str(lost_joints))
             self.lost_pose = {}
         # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
         # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
@@ -197,8 +195,7 @@ class RobotSession:
             return
         freed = self._freed_to_read
         where = "it stands" if len(freed) == 1 else "they stand"
-        said = [] if first else self._reopen_said
-        self._reopen_said = []
+        said = [] if first else await self._reopen_words(robot)
         if freed:  # (at a reopen, those the page's answer named: the others were free already, or said free above)
             said.append(f"{', '.join(freed)} freed to read where {where}")
         if first:  # (its first open, after a failed start or the open's question)
@@ -218,6 +215,32 @@ class RobotSession:
             how = "answer" if start_free is not None else "Reconnect"
             what = f"{'opened' if first else 'reopened'} the robot" + (f": {'; '.join(said)}" if said else "")
             self.tell(f"the Robot page's {how} {what}")
+
+    async def _reopen_words(self, robot: Robot) -> list[str]:
+        """What Reconnect's answer did to the lost line's joints (none: nothing asked), for its outcome: those whose
+        servo failed the first cycle are said apart (not answering yet), not said to hold or start free."""
+        lost, answer = self._reopen_answer
+        self._reopen_answer = ([], "")
+        if not lost:
+            return []
+        failed: frozenset[str] = frozenset()
+        with contextlib.suppress(TimeoutError, IcsError):  # (its first frame says which answer)
+            async with asyncio.timeout(RECONNECT_WAIT):
+                failed = (await robot.wait_frame(0)).failed
+        silent = [name for name in lost if name in failed or name in robot.unreached]
+        there = [name for name in lost if name not in silent]
+        said = []
+        if there:
+            one = len(there) == 1
+            done = (
+                ("holds its last target" if one else "hold their last targets")
+                if answer == "hold"
+                else ("starts free" if one else "start free")
+            )
+            said.append(f"{', '.join(there)} {done}")
+        if silent:  # (the table says what comes of them: offline, then held once they answer; or the answer's)
+            said.append(f"{', '.join(silent)} not answering yet")
+        return said
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
         # No RobotWarning from the open (this task's own context): issued in the server's loop, it would point
