@@ -329,6 +329,22 @@ def joints_left_said(rig: Rig, **options: Any) -> dict[str, str]:
     return said
 
 
+def test_a_stated_joint_moved_since_is_said_to_hold_its_last_target_not_its_stated_angle() -> None:
+    # "joints shoulder, elbow hold their stated angles" after a move had taken them elsewhere.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> tuple[str, str]:
+        await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+        before = robot.joints_left()
+        await robot.move_to({"shoulder": 20.0}, duration=0.05)
+        await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+        return before, robot.joints_left()
+
+    before, after = run_robot(rig, body, start_pose={"shoulder": 10.0, "elbow": 30.0})
+    assert "joints shoulder, elbow hold their stated angles" in before, before
+    assert "shoulder, elbow hold their last targets" in after and "stated" not in after, after
+
+
 @pytest.mark.parametrize("on_close", ["hold", "free"])
 def test_the_block_does_not_say_an_unplugged_servo_was_freed(on_close: str) -> None:
     # A leg unplugged as the robot opened: Ctrl-C then said its joints "were freed to read where they stand",

@@ -465,9 +465,9 @@ def test_reconnect_holding_the_lost_joints_says_which_did_not_answer(robot: Any)
     line.replug()
     said = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["outcome"]
     assert said == "reconnected; shoulder holds its last target; elbow not answering yet", said
-    line.add_device(elbow)  # (back before it went offline: its target reaches it, as the answer said)
-    wait_for(lambda: not client.get("/api/robot").json()["joints"][1]["offline"])
-    assert elbow.target == degrees_to_position(20) and not elbow.free
+    elbow.command_position(degrees_to_position(50))  # (elsewhere meanwhile)
+    line.add_device(elbow)  # (back before it went offline: its last target reaches it, as the answer said)
+    wait_for(lambda: elbow.target == degrees_to_position(20))
 
 
 def test_a_line_lost_again_does_not_leave_the_last_reconnects_words_on_the_state_line(robot: Any) -> None:
@@ -1072,6 +1072,35 @@ def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_
         assert opened["outcome"] == "reconnected; shoulder holds its last target; elbow freed to read where it stands"
         time.sleep(0.1)
         assert line.sim.servo(1).target == degrees_to_position(20) and not line.sim.servo(1).free
+
+
+@pytest.mark.pty
+def test_reconnects_answer_for_the_lost_lines_joints_is_for_the_open_it_was_given_to(tmp_path: Path) -> None:
+    # Kept while the open's question kept the robot closed; but an open that failed for a missing line kept it too,
+    # and the next Reconnect held the joints at their old targets unasked (their servos may have restarted since).
+    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
+        assert post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()["open"]
+        post(client, "/api/robot/motion", {"enabled": True})
+        assert post(client, "/api/robot/move", {"pose": {"shoulder": 20}, "duration": 0.1}).status_code == 200
+        wait_for(lambda: line.sim.servo(1).target == degrees_to_position(20))
+        elbow = VirtualServo(2)
+        elbow.command_position(7000)
+        line.sim.add_device(elbow)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
+        lose_and_replug_pty(client, line)
+        asked = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()
+        assert asked["start_free_choice"] == {"joints": ["elbow"]}, asked
+        # (while the question waits, the elbow is shown as it was left: held, sent nothing)
+        assert asked["joints"][1]["held"] == "rejoined" and asked["joints"][1]["target"] is None, asked
+        line.sim.unplug()
+        wait_for(lambda: not os.path.lexists(line.path))
+        failed = post(client, "/api/robot/reopen", {"start_free": ["elbow"]}).json()
+        assert not failed["open"] and failed["error"].startswith("the robot's lines could not be opened"), failed
+        line.sim.replug()
+        wait_for(lambda: os.path.exists(line.path))
+        again = post(client, "/api/robot/reopen", {"start_free": ["elbow"]})
+        assert again.status_code == 400 and "say whether they hold" in again.json()["error"], again.json()
+        assert client.get("/api/robot").json()["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder"]}
 
 
 @pytest.mark.pty

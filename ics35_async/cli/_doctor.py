@@ -55,7 +55,7 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan, id
     where = f"{settings.port} at {settings.baud} baud"
     if probed.silent and settings.echo:
         return nothing_answered(settings, where, silent=True)
-    if not probed.garbled and not every_id(ids):
+    if not every_id(ids):
         # (`--ids 9` on a line of servos 1-6: the line and its rate are right, the IDs asked are not)
         probed = await policies.check_other_ids(bus, probed, ids)
         if probed.lost is not None:

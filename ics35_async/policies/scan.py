@@ -406,7 +406,7 @@ async def scan(
                 continue
             rate_blind = not carries_line_settings(getattr(line, "port", None))
             rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe)
-            if len(set(wanted)) < len(ALL_IDS) and _none_there(rate, line.echo):
+            if len(set(wanted)) < len(ALL_IDS):
                 rate = await check_other_ids(line, rate, wanted)
             rates.append(rate)
             lost = rate.lost
@@ -442,11 +442,14 @@ def _none_there(rate: RateScan, echo: bool) -> bool:
 
 
 async def check_other_ids(line: Line, rate: RateScan, wanted: Collection[int]) -> RateScan:
-    """``rate`` (what :func:`probe_ids` found of ``wanted`` on ``line``: none of them there) with ``elsewhere``
-    where a device at an ID not in ``wanted`` answers the ID read, and ``id_answer`` its ID where one device gave it
-    (several at once answer it garbled): the line and its rate are right, the IDs asked are not.  One ID read,
-    asked unless the probes' own was answered with an ID (a device answering it as an ID that was probed is
-    ``only_id_read``: not elsewhere).  A line lost meanwhile is ``lost``, as a probe's loss is in a scan's report."""
+    """``rate`` (what :func:`probe_ids` found of ``wanted`` on ``line``) with ``elsewhere`` where none of ``wanted``
+    answered, cleanly or not, on a line that is heard, but a device at an ID not in ``wanted`` answers the ID read,
+    and ``id_answer`` its ID where one device gave it (several at once answer it garbled): the line and its rate
+    are right, the IDs asked are not.  One ID read, asked unless the probes' own was answered with an ID (a device
+    answering it as an ID that was probed is ``only_id_read``: not elsewhere); none where something of ``wanted``
+    answered.  A line lost meanwhile is ``lost``, as a probe's loss is in a scan's report."""
+    if not _none_there(rate, line.echo):
+        return rate
     answer: int | ReplyError | None = rate.id_answer
     if answer is None:
         try:

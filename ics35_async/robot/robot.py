@@ -132,6 +132,7 @@ class Robot:
         self._gstream: GroupStream | None = None
         self._streams: dict[str, Stream] = {}  # every line's, once the open has made them (see started)
         self._heard_at_open: set[str] = set()  # (see started)
+        self._stated: dict[str, int] = {}  # the start pose's targets, in counts (see started, joints_left)
         # Every stop() and safety trip so far, and the newest one's error: a looping play between two passes has
         # no plan for them to end, and its next pass must not start after them (see run's ``unless_stopped_since``).
         self._stops = 0
@@ -469,6 +470,7 @@ class Robot:
         (``start_free``)."""
         self._heard_at_open = set(heard)
         self._streams = dict(streams)
+        self._stated = {name: self.joints[name].position(deg) for name, deg in stated.items()}  # (as sent: counts)
         self._targets.update(stated)
         self.untouched = set(read)
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
@@ -502,7 +504,8 @@ class Robot:
                 groups["as found"].append(name)
         if not any(groups[group] for group in ("read free", "freed", "held")):
             return "no joint was sent anything that moves or frees it (its servos were only read)"
-        stated = all(self.start_modes[name] == "stated" for name in groups["held"])
+        # (a stated angle only while its joint still carries it: moved since, it holds its last target)
+        stated = all(self._carried(name) == self._stated.get(name) for name in groups["held"])
         words = {
             "read free": ("was freed to read where it stands", "were freed to read where they stand"),
             "freed": ("was freed", "were freed"),
@@ -520,6 +523,12 @@ class Robot:
             for group, names in groups.items()
             if names
         )
+
+    def _carried(self, name: str) -> int | None:
+        """The target joint ``name``'s stream carries now (counts), or None before the streams are made."""
+        joint = self.joints[name]
+        stream = self._streams.get(joint.line)
+        return None if stream is None else stream.target(joint.id)
 
     def _heard_from(self, name: str) -> bool:
         """Whether ``name``'s servo has answered anything since the robot opened: a position, or the open's probe

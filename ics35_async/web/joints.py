@@ -39,6 +39,7 @@ MISSING_AT_OPEN = (
 # How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
 # longest, 0.1 s, with room for a loaded machine and a port slow to open) before it says the line is still lost.
 RECONNECT_WAIT = 2.0
+FRAME_WAIT = 1.0  # seconds Reconnect's words wait for a frame of the reopened robot (which joints answer)
 
 
 class RobotSession:
@@ -64,7 +65,7 @@ class RobotSession:
         self.start_free_choice: list[str] | None = None
         self._free_confirmed: frozenset[str] = frozenset()  # the joints the page said may start free (this open)
         self._free_known: frozenset[str] = frozenset()  # those free when the robot ended, or said free at Reconnect
-        self._reopen_answer: tuple[list[str], str] = ([], "")  # the lost line's joints, and Reconnect's answer
+        self._lost_answer: str | None = None  # Reconnect's answer for lost_pose, while the open's question waits
         self._freed_to_read: list[str] = []  # those the last open freed to read them (asked about, or --yes)
         self._opened_once = False
         self.path = path
@@ -105,7 +106,8 @@ class RobotSession:
         # The robot a lost line stopped, kept open until Reconnect (its lines reconnect by themselves): the lines
         # still there stream on, so Free all reaches their joints and sees it on the wire (see free).
         self._stopped_robot: Robot | None = None
-        self._free_at_reopen: list[str] = []  # joints Free all could not reach (a lost line's): freed at Reconnect
+        # Joints Free all could not reach (a lost line's): freed as their line is back, and again at Reconnect
+        self._free_at_reopen: list[str] = []
 
     async def open(self) -> None:
         """Open the robot's lines (an error is kept for the page, not raised): a task of its own holds the
@@ -124,9 +126,10 @@ class RobotSession:
     async def reopen(self, lost_joints: object = None, start_free: object = None) -> None:
         """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks.
 
-        Before any robot was open, ``start_free`` names the joints the page's question named
-        (:attr:`start_free_choice`) that may start free: freed to read where they stand.  Any other that would
-        start free keeps the robot closed again, nothing freed, and is asked about.
+        ``start_free`` names the joints the page's question named (:attr:`start_free_choice`) that may start free:
+        freed to read where they stand.  Any other that would start free (but one free when the robot stopped, or
+        one ``lost_joints="free"`` names) keeps the robot closed again, nothing freed, and is asked about; an answer
+        to ``lost_joints`` given then stands for the next Reconnect (not after an open that failed otherwise).
 
         A joint that held a target when the robot ended carries on: on a line that stayed, it holds that
         target from the first command (its servo kept holding it); on the lost line an ICS 3.6 joint is
@@ -161,41 +164,40 @@ class RobotSession:
                 raise UnsafeOperation("the robot was closed while Reconnect waited for its line")
             if still:
                 named = self._in_order(still)
-                others = len(named) < len(self.description.lines)  # (a robot of one line has none)
                 raise UnsafeOperation(
                     f"{_lines_named(named)} {'is' if len(named) == 1 else 'are'} still lost (the port is not back):"
                     " plug it back in, then press Reconnect"
-                    + ("; meanwhile Free all reaches the joints on the other lines" if others else "")
+                    + ("; meanwhile Free all reaches the joints on the other lines" if self._other_lines(named) else "")
                 )
             self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
-        if self.lost_pose and lost_joints not in ("hold", "free"):
+        # (an answer given to an open its question kept closed stands for the next: the page then asks only that)
+        answer = lost_joints if lost_joints is not None else self._lost_answer
+        if self.lost_pose and answer not in ("hold", "free"):
             raise InvalidArgument(
                 f"line {', '.join(self.lost_lines)} held joints {', '.join(self.lost_pose)} when it was lost:"
                 " say whether they hold their last targets ('hold': right if their servos kept their power)"
                 " or start free ('free': right if they restarted, free and elsewhere)"
             )
         await self.close()
-        if self.lost_pose:
-            # The answer stands until the robot opens (the open's question may keep it closed meanwhile).
-            # The state line said how the robot was before the line went ("joints hold where they stand", a
-            # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
-            if lost_joints == "hold":
-                self.start_pose = {**self.start_pose, **self.lost_pose}
-            else:
-                self._free_known |= frozenset(self.lost_pose)
-            self._reopen_answer = (list(self.lost_pose), str(lost_joints))
-            self.lost_pose = {}
         # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
         # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
         pose = dict(self.start_pose)
+        if self.lost_pose:
+            self._lost_answer = str(answer)
+            if answer == "hold":
+                pose.update(self.lost_pose)
         first = not self._opened_once
         await self._open(pose)
         robot = self.robot
         if robot is None:
+            if not self.start_free_choice:  # (a line missing: the servos may restart before the next Reconnect)
+                self._lost_answer = None
             return
         freed = self._freed_to_read
         where = "it stands" if len(freed) == 1 else "they stand"
         said = [] if first else await self._reopen_words(robot)
+        if self.robot is not robot:  # (a line lost again meanwhile: _stop_at_loss has said how it stands)
+            return
         if freed:  # (at a reopen, those the page's answer named: the others were free already, or said free above)
             said.append(f"{', '.join(freed)} freed to read where {where}")
         if first:  # (its first open, after a failed start or the open's question)
@@ -207,8 +209,10 @@ class RobotSession:
                 with contextlib.suppress(IcsError):
                     await robot.free(free_now)
                 said.append(f"{', '.join(free_now)} freed, as Free all asked")
+                if self.robot is not robot:
+                    return
             self.outcome = "; ".join(["reconnected", *said])
-            self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
+            self.start_pose, self.lost_pose, self.lost_lines, self._lost_answer = pose, {}, [], None
         self._open_said = self.outcome
         if self.tell is not None:
             # The terminal said the robot was not open (its question, a line missing or lost): it hears it is now.
@@ -218,14 +222,13 @@ class RobotSession:
 
     async def _reopen_words(self, robot: Robot) -> list[str]:
         """What Reconnect's answer did to the lost line's joints (none: nothing asked), for its outcome: those whose
-        servo failed the first cycle are said apart (not answering yet), not said to hold or start free."""
-        lost, answer = self._reopen_answer
-        self._reopen_answer = ([], "")
+        servo failed the newest cycle are said apart (not answering yet), not said to hold or start free."""
+        lost, answer = list(self.lost_pose), self._lost_answer
         if not lost:
             return []
         failed: frozenset[str] = frozenset()
-        with contextlib.suppress(TimeoutError, IcsError):  # (its first frame says which answer)
-            async with asyncio.timeout(RECONNECT_WAIT):
+        with contextlib.suppress(TimeoutError, IcsError):  # (a frame of the robot just opened: at once, or its first)
+            async with asyncio.timeout(FRAME_WAIT):
                 failed = (await robot.wait_frame(0)).failed
         silent = [name for name in lost if name in failed or name in robot.unreached]
         there = [name for name in lost if name not in silent]
@@ -253,8 +256,10 @@ class RobotSession:
 
         def may_start_free(joints: list[str]) -> bool:
             asked = self.description.on_hardware(joints)
-            unconfirmed[:] = [j for j in asked if j not in self._free_confirmed and j not in self._free_known]
-            self._freed_to_read = [j for j in asked if j not in self._free_known] if not unconfirmed else []
+            # (free when the robot stopped, or said to start free at Reconnect: freeing them changes nothing asked)
+            known = self._free_known | (self.lost_pose.keys() if self._lost_answer == "free" else set())
+            unconfirmed[:] = [j for j in asked if j not in self._free_confirmed and j not in known]
+            self._freed_to_read = [j for j in asked if j not in known] if not unconfirmed else []
             return not unconfirmed
 
         if self.ask_before_freeing:
@@ -363,7 +368,8 @@ class RobotSession:
         await self.stop()
         # (what its streams leave each joint in, from what they sent: words for the server's end, see left_words)
         kept = self.robot or self._stopped_robot
-        self.left_words = None if kept is None else kept.joints_left()
+        if kept is not None:  # (none open: the joints are as the last one left them)
+            self.left_words = kept.joints_left()
         holder, self._holder = self._holder, None
         if holder is not None:
             self._closing.set()
@@ -408,6 +414,10 @@ class RobotSession:
             return None
         return f"{_lines_named(self.lost_lines)} {'is' if len(self.lost_lines) == 1 else 'are'} back: press Reconnect"
 
+    def _other_lines(self, lost: Collection[str]) -> bool:
+        """Whether the robot has lines other than ``lost`` (a robot of one line is told of none)."""
+        return len(set(lost)) < len(self.description.lines)
+
     def _in_order(self, lines: Collection[str]) -> list[str]:
         """``lines`` in the order the robot file gives them."""
         return [line for line in self.description.lines if line in lines]
@@ -435,7 +445,11 @@ class RobotSession:
 
     def lines_view(self) -> dict[str, Any]:
         """The robot's name and lines, for every page's navigation."""
-        lines = [{"name": s.name, "port": s.port, "baud": s.baudrate} for s in self.description.lines.values()]
+        lines = [
+            # (simulated: the built-in simulator's, by the library's one rule for a port's scheme)
+            {"name": s.name, "port": s.port, "baud": s.baudrate, "simulated": url_scheme(s.port) == "sim"}
+            for s in self.description.lines.values()
+        ]
         return {"name": self.description.name or self.path, "open": self.robot is not None, "lines": lines}
 
     def _moving_allowed(self) -> Robot:
@@ -499,7 +513,11 @@ class RobotSession:
             "outcome": self.outcome,
             "joints": joints,
             # Reconnect's question: what the lost line's holding joints do (see reopen)
-            "reconnect_choice": {"lines": self.lost_lines, "joints": list(self.lost_pose)} if self.lost_pose else None,
+            "reconnect_choice": (
+                {"lines": self.lost_lines, "joints": list(self.lost_pose)}
+                if self.lost_pose and self._lost_answer is None
+                else None
+            ),
             # The open's question: the joints it would free to read them (see reopen's start_free)
             "start_free_choice": asking,
         }
@@ -521,10 +539,7 @@ class RobotSession:
             left = robot.hold()
             held = robot.held
             for name in left.keys() & held.keys():  # (the library's words name its API; the page's way out is a button)
-                left[name] = (
-                    f"held, sent nothing, since its servo answered again ({held[name]}): where it stands is unknown;"
-                    " the Free button in its row frees it to read where it stands"
-                )
+                left[name] = _held_on_the_page(held[name])
             # (the page's state line: not "joints free"; and each joint left as it was, with why)
             self.outcome = "joints hold where they stand" + "".join(
                 f"; {n} left as it is: {w}" for n, w in left.items()
@@ -635,7 +650,7 @@ class RobotSession:
         """
         if self.robot is None:
             if self._stopped_robot is not None:  # (kept: its other lines stream on, see free)
-                there = " on the lines still there" if len(self.lost_lines) < len(self.description.lines) else ""
+                there = " on the lines still there" if self._other_lines(self.lost_lines) else ""
                 todo = f"Free all lets go of those{there}; Reconnect opens the robot again"
             elif self.start_free_choice:
                 todo = "the answer to its question opens it (Free all then lets them go)"
@@ -704,10 +719,8 @@ class RobotSession:
             return
         names = ", ".join(self._free_at_reopen)
         one = len(self._free_at_reopen) == 1
-        lines = ", ".join(self.lost_lines)
-        others = len(self.lost_lines) < len(self.description.lines)  # (a robot of one line has none)
-        self.outcome = ("joints free on the lines still there; " if others else "") + (
-            f"{names} not reached (line {lines} lost): "
+        self.outcome = ("joints free on the lines still there; " if self._other_lines(self.lost_lines) else "") + (
+            f"{names} not reached ({_lines_named(self.lost_lines)} lost): "
             f"{'its servo' if one else 'their servos'} may still hold; {'it goes' if one else 'they go'} free the"
             " moment the line is back: hold the robot as you plug it in"
         )
@@ -732,6 +745,15 @@ def _lines_named(lines: list[str]) -> str:
     return f"{'line' if len(lines) == 1 else 'lines'} {', '.join(lines)}"
 
 
+def _held_on_the_page(why: str) -> str:
+    """A held joint (``Robot.held``: sent nothing since its servo answered again, or its line came back, ``why``)
+    and the page's way out, its row's Free button: the library's words name its API (set its target)."""
+    return (
+        f"held, sent nothing, since its servo answered again ({why}): where it stands is unknown; the Free button"
+        " in its row frees it to read where it stands"
+    )
+
+
 def _check_ready(robot: Robot, joints: Iterable[str]) -> None:
     """What the robot would refuse a motion of ``joints`` for (``Robot.check_ready``: a joint held, tripped, never
     heard from or standing past a limit), raised now, as the request's answer, rather than told only in the state
@@ -740,11 +762,7 @@ def _check_ready(robot: Robot, joints: Iterable[str]) -> None:
     held = [name for name in joints if name in robot.held]
     if held:
         # The library's words name its API (set_targets); the page's way out is the joint's Free button.
-        raise UnsafeOperation(
-            f"joint {held[0]} is held, sent nothing, since its servo answered again ({robot.held[held[0]]}): "
-            "where it stands is unknown, and a move would start from the target it had; Free it (the button "
-            "in its row: it is then read where it stands), then move it"
-        )
+        raise UnsafeOperation(f"joint {held[0]} is {_held_on_the_page(robot.held[held[0]])}, then move it")
     robot.check_ready(joints)
 
 

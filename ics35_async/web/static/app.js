@@ -130,7 +130,7 @@ function showSimBanner() {
   const s = state.status;
   if (!s) return;
   const robotPage = (location.hash.slice(1) || "line").split("/")[0] === "robot";
-  const realRobot = Boolean(s.robot) && s.robot.lines.some((l) => !String(l.port).startsWith("sim://"));
+  const realRobot = Boolean(s.robot) && s.robot.lines.some((l) => !l.simulated);
   $("#sim-banner").hidden = !s.simulator || (robotPage && realRobot);
 }
 
