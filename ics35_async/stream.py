@@ -336,7 +336,8 @@ class Stream(FrameIterator[Frame]):
         self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
     def set_targets(self, targets: Mapping[int, int], *, lift_holds: bool = True) -> None:
-        """Several ``targets`` ``{id: position}`` at once; all are checked before any is applied.
+        """Several ``targets`` ``{id: position}`` at once (1..16383; 0 frees: torque off, still read back); all are
+        checked before any is applied.
 
         ``lift_holds=False``: an ID held now (see :attr:`held`) takes its target but stays held, sent nothing
         (a control loop that sets every target each cycle: a hold may begin after the frame it looked at).

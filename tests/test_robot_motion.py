@@ -21,6 +21,7 @@ from ics35_async.robot import (
     MotionStopped,
     load_description,
     load_motion,
+    parse_motion,
     save_motion,
 )
 from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, sent_position, targets_sent
@@ -416,3 +417,10 @@ def test_a_stop_between_two_passes_of_a_looping_play_ends_the_loop(backend: str)
     neck = targets_sent(rig.upper, JOINTS["neck"]["id"], mark)
     assert set(neck) == {sent_position(JOINTS["neck"], -20.0)}, sorted(set(neck))
     assert outcome and isinstance(outcome[0], MotionStopped), outcome
+
+
+def test_a_pose_given_where_a_motion_is_wanted_is_told_to_go_to_move_to() -> None:
+    # `robot.play({"base": 10})`: "unknown key (known: format, version, ...)", and no word of the pose it was.
+    with pytest.raises(MotionError) as caught:
+        parse_motion({"base": 10.0})
+    assert "a pose, not a motion" in str(caught.value) and "move_to" in str(caught.value), str(caught.value)

@@ -1463,3 +1463,15 @@ def test_a_joints_first_reading_once_its_servo_answers_again_is_not_held_or_move
                 assert targets_sent(line, 2, since) == [] and unplugged.free
 
     run_on_garbled_lines(main, line)
+
+
+def test_a_joint_target_of_none_without_allow_free_names_allow_free() -> None:
+    rig = make_rig()
+
+    async def body(robot: Robot) -> str:
+        with pytest.raises(InvalidArgument) as caught:
+            robot.set_targets({"neck": None})
+        return str(caught.value)
+
+    said = run_robot(rig, body)
+    assert "allow_free=True" in said and "neck" in said, said

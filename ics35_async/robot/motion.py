@@ -203,6 +203,9 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
     if not isinstance(data, Mapping):
         raise MotionError(source, "", "a motion is a JSON object with format, version and keyframes")
     unknown = set(data) - {"format", "version", "name", "profile", "keyframes"}
+    if unknown and unknown == set(data) and all(units.real_number(v) is not None for v in data.values()):
+        # ({joint: degrees}: what move_to takes, given where a motion is wanted)
+        raise MotionError(source, "", "this is a pose, not a motion: move_to(pose, duration) moves to a pose")
     if unknown:
         raise MotionError(source, sorted(unknown)[0], "unknown key (known: format, version, name, profile, keyframes)")
     if data.get("format") != FORMAT:
