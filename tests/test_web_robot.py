@@ -1048,10 +1048,11 @@ def test_reconnect_asks_before_freeing_a_joint_held_since_it_answered_again_with
         assert opened["open"] and elbow.free, opened
 
 
-@pytest.mark.pty
-def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_before_freeing(tmp_path: Path) -> None:
-    # The shoulder held a target when the line went (Reconnect asks whether it still holds it); the elbow came back
-    # held with none (the open asks before freeing it).  Answered in turn, each answer is kept, not asked again.
+@contextlib.contextmanager
+def arm_lost_holding_and_held(tmp_path: Path) -> Iterator[tuple[PtyLine, TestClient, VirtualServo]]:
+    """A :func:`standing_arm` of two ICS 3.5 joints, its line lost and back: the shoulder held a target (20 degrees)
+    when it went, the elbow's servo (holding 7000) was held, sent nothing, since it answered after the open.  The
+    line, the client and the elbow's servo."""
     with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
         assert post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()["open"]
         post(client, "/api/robot/motion", {"enabled": True})
@@ -1062,6 +1063,14 @@ def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_
         line.sim.add_device(elbow)
         wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
         lose_and_replug_pty(client, line)
+        yield line, client, elbow
+
+
+@pytest.mark.pty
+def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_before_freeing(tmp_path: Path) -> None:
+    # The shoulder held a target when the line went (Reconnect asks whether it still holds it); the elbow came back
+    # held with none (the open asks before freeing it).  Answered in turn, each answer is kept, not asked again.
+    with arm_lost_holding_and_held(tmp_path) as (line, client, elbow):
         assert client.get("/api/robot").json()["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder"]}
         asked = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()
         assert not asked["open"] and asked["start_free_choice"] == {"joints": ["elbow"]}, asked
@@ -1078,16 +1087,7 @@ def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_
 def test_reconnects_answer_for_the_lost_lines_joints_is_for_the_open_it_was_given_to(tmp_path: Path) -> None:
     # Kept while the open's question kept the robot closed; but an open that failed for a missing line kept it too,
     # and the next Reconnect held the joints at their old targets unasked (their servos may have restarted since).
-    with standing_arm(tmp_path, ics36=(), absent=(2,)) as (line, client, _):
-        assert post(client, "/api/robot/reopen", {"start_free": ["shoulder"]}).json()["open"]
-        post(client, "/api/robot/motion", {"enabled": True})
-        assert post(client, "/api/robot/move", {"pose": {"shoulder": 20}, "duration": 0.1}).status_code == 200
-        wait_for(lambda: line.sim.servo(1).target == degrees_to_position(20))
-        elbow = VirtualServo(2)
-        elbow.command_position(7000)
-        line.sim.add_device(elbow)
-        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["held"] == "rejoined")
-        lose_and_replug_pty(client, line)
+    with arm_lost_holding_and_held(tmp_path) as (line, client, _):
         asked = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()
         assert asked["start_free_choice"] == {"joints": ["elbow"]}, asked
         # (while the question waits, the elbow is shown as it was left: held, sent nothing)
