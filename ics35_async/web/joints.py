@@ -195,7 +195,7 @@ class RobotSession:
             return
         freed = self._freed_to_read
         where = "it stands" if len(freed) == 1 else "they stand"
-        said = [] if first else await self._reopen_words(robot)
+        said = [] if first else await self._reopen_words(robot, str(answer))
         if self.robot is not robot:  # (a line lost again meanwhile: _stop_at_loss has said how it stands)
             return
         if freed:  # (at a reopen, those the page's answer named: the others were free already, or said free above)
@@ -212,7 +212,7 @@ class RobotSession:
                 if self.robot is not robot:
                     return
             self.outcome = "; ".join(["reconnected", *said])
-            self.start_pose, self.lost_pose, self.lost_lines, self._lost_answer = pose, {}, [], None
+            self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
         self._open_said = self.outcome
         if self.tell is not None:
             # The terminal said the robot was not open (its question, a line missing or lost): it hears it is now.
@@ -220,10 +220,10 @@ class RobotSession:
             what = f"{'opened' if first else 'reopened'} the robot" + (f": {'; '.join(said)}" if said else "")
             self.tell(f"the Robot page's {how} {what}")
 
-    async def _reopen_words(self, robot: Robot) -> list[str]:
-        """What Reconnect's answer did to the lost line's joints (none: nothing asked), for its outcome: those whose
-        servo failed the newest cycle are said apart (not answering yet), not said to hold or start free."""
-        lost, answer = list(self.lost_pose), self._lost_answer
+    async def _reopen_words(self, robot: Robot, answer: str) -> list[str]:
+        """What Reconnect's ``answer`` did to the lost line's joints (none: nothing asked), for its outcome: those
+        whose servo failed the newest cycle are said apart (not answering yet), not said to hold or start free."""
+        lost = list(self.lost_pose)
         if not lost:
             return []
         failed: frozenset[str] = frozenset()
@@ -270,6 +270,7 @@ class RobotSession:
                 self._opened_once, self.start_free_choice = True, None
                 # (each answer was for this open: a later one asks again of what is not known free then)
                 self._free_confirmed = self._free_known = frozenset()
+                self._lost_answer = None
                 for stop in self.kept_trips:  # (before anyone can move it: motion is off until the page's switch)
                     # Told as a "free" stop: the joint is free already, and "stop" would free the others too.
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
