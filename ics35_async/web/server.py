@@ -111,8 +111,8 @@ def create_app(
     The line opens when the server starts; a port that cannot be opened is
     shown on the Line page (and given to ``warn``), where another can be chosen.
     With ``line_from_robot`` the pages start on the robot's first line instead.
-    ``note`` hears of a robot the Robot page opened (the terminal said it was not open, or lost), and at the
-    server's end what it leaves the robot's joints in.
+    ``note`` hears of a robot the Robot page opened (the terminal said it was not open, or lost), of a lost line
+    that stopped it, and at the server's end what it leaves the robot's joints in.
     """
 
     @contextlib.asynccontextmanager
@@ -407,8 +407,8 @@ def serve(
     loop: Literal["auto", "asyncio", "uvloop"] = "auto",
 ) -> int:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
-    ``note`` what the server does as it stops (a stop that waits for requests still being answered) and a robot the
-    Robot page opened,
+    ``note`` what the server does as it stops (a stop that waits for requests still being answered, what it leaves
+    the robot's joints in) and what befalls the robot meanwhile (the Robot page opened it, a lost line stopped it),
     ``no_browser_opened`` that ``open_browser`` was asked for and no browser could be opened (a headless machine,
     an ssh session): the address announced is then for the person to open.
 
