@@ -426,9 +426,9 @@ class Robot:
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
-        if not allow_free and None in pose.values():  # (None frees: only where the program says it means it)
-            name = next(n for n, d in pose.items() if d is None)
-            raise InvalidArgument(f"joint {name}: a target of None frees the joint, which takes allow_free=True")
+        freeing = [] if allow_free else [n for n, d in pose.items() if d is None]  # (by identity: any value compares)
+        if freeing:  # (None frees: only where the program says it means it)
+            raise InvalidArgument(f"joint {freeing[0]}: a target of None frees the joint, which takes allow_free=True")
         checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
         if any(d is not None for d in checked.values()):
             self._check_watched()  # (freeing alone still reaches the lines left)
