@@ -1071,9 +1071,14 @@ def test_reconnects_answer_for_the_lost_lines_joints_stands_while_its_open_asks_
     # The shoulder held a target when the line went (Reconnect asks whether it still holds it); the elbow came back
     # held with none (the open asks before freeing it).  Answered in turn, each answer is kept, not asked again.
     with arm_lost_holding_and_held(tmp_path) as (line, client, elbow):
+        told: list[str] = []
+        client.app.state.robot.tell = told.append  # (the server's terminal)
         assert client.get("/api/robot").json()["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder"]}
         asked = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()
         assert not asked["open"] and asked["start_free_choice"] == {"joints": ["elbow"]}, asked
+        # (the terminal, told the robot stopped, hears that Reconnect left it closed for the page's question)
+        said = "Reconnect did not open the robot, nothing freed: joint elbow speaks ICS 3.5"
+        assert len(told) == 1 and told[0].startswith(said) and "the Robot page asks" in told[0], told
         assert asked["reconnect_choice"] is None, asked  # (answered: the page asks only what is left)
         assert elbow.target == 7000 and not elbow.free
         opened = post(client, "/api/robot/reopen", {"start_free": ["elbow"]}).json()

@@ -192,6 +192,14 @@ class RobotSession:
         if robot is None:
             if not self.start_free_choice:  # (a line missing: the servos may restart before the next Reconnect)
                 self._lost_answer = None
+            elif self.tell is not None and not first:  # (the terminal heard the robot stop: it hears why it waits)
+                joints = self.start_free_choice
+                one = len(joints) == 1
+                self.tell(
+                    f"Reconnect did not open the robot, nothing freed: joint{'' if one else 's'} {', '.join(joints)}"
+                    f" {'speaks' if one else 'speak'} ICS 3.5 and would start free (read by freeing"
+                    f" {'it' if one else 'them'}), which was not free when the robot stopped: the Robot page asks"
+                )
             return
         freed = self._freed_to_read
         where = "it stands" if len(freed) == 1 else "they stand"
