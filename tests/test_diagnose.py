@@ -707,6 +707,20 @@ def test_doctor_and_ports_on_a_pseudo_terminal_say_so_and_give_no_adapter_advice
 
 
 @pytest.mark.pty
+def test_doctor_takes_a_port_path_relative_to_the_working_directory(
+    cli: Any, pty_sim: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `cd` beside `ics35 sim`'s link, `doctor --port ttyA`: "ttyA does not exist" (looked up below /), hint
+    # "/dev/ttyA", where every other command opened it.
+    sim = pty_sim("--ids", "1", "--fast")
+    monkeypatch.chdir(os.path.dirname(sim.path))
+    for port in (os.path.basename(sim.path), f"./{os.path.basename(sim.path)}"):
+        result = cli("--port", port, "doctor", "--ids", "1", "--samples", "10")
+        said = " ".join((result.out + result.err).split())
+        assert result.code == 0 and "does not exist" not in said, said
+
+
+@pytest.mark.pty
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the holder is found in Linux's /proc")
 def test_doctor_on_a_port_another_program_holds_says_so_once(cli: Any, pty_sim: Any) -> None:
     # It said who held the port, then tried to open it all the same and said "in use by another program" too:

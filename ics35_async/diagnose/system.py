@@ -85,7 +85,8 @@ class SystemReport:
 
 
 def _below(root: Path, path: str) -> Path:
-    return root / path.lstrip("/")
+    # (a relative path, a port named from where the command runs, is the working directory's, as every open takes it)
+    return root / os.path.abspath(path).lstrip("/")
 
 
 def is_pseudo_terminal(port: str | None, root: str | Path = "/") -> bool:
