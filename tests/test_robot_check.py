@@ -80,6 +80,21 @@ def test_a_robot_file_is_summed_up_with_no_port_opened(cli: Any, tmp_path: Path)
     ) in said, said
 
 
+def test_a_joint_whose_file_gives_the_whole_travel_as_its_limits_is_not_said_to_have_none(
+    cli: Any, tmp_path: Path
+) -> None:
+    # After calibrate measured a wrist that turns the servo's whole way (min = -135, max = 135): "no min or max in
+    # the file: ics35 calibrate finds a joint's own", sending the builder to calibrate again.
+    path = tmp_path / "wrist.toml"
+    path.write_text(
+        '[lines.main]\nport = "/dev/ttyUSB9"\n[joints.wrist]\nline = "main"\nid = 1\nmin = -135\nmax = 135\n'
+        '[joints.elbow]\nline = "main"\nid = 2\n'
+    )
+    said = " ".join(cli("check", str(path)).out.split())
+    assert "elbow: its limits are the servo's whole travel (no min or max in the file" in said, said
+    assert "wrist, elbow:" not in said and "wrist:" not in said, said
+
+
 def test_motions_are_checked_against_the_robot(cli: Any, tmp_path: Path) -> None:
     robot = robot_file(tmp_path)
     wave = motion_file(tmp_path / "wave.json", {"shoulder": 20, "wrist": -10}, {"shoulder": 0}, {"wrist": 0})

@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..robot import Motion, RobotDescription
-from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
+from ..robot.description import JointSpec, SafetySpec
 from ..transports.wire_device import url_scheme
 from ..units import shown
 from ._common import CliError, ExitCode, emit_json, ids_named, json_option, out
@@ -43,9 +43,9 @@ def _plural(count: int, word: str) -> str:
 
 
 def _whole_travel(joint: JointSpec) -> bool:
-    """Limits at the servo's whole travel: the file gives none (never calibrated?)."""
-    ends = sorted(joint.joint_degrees(e) for e in (-SERVO_DEGREES, SERVO_DEGREES))
-    return abs(joint.min - ends[0]) < 1e-9 and abs(joint.max - ends[1]) < 1e-9
+    """Limits at the servo's whole travel because the file gives none (never calibrated?): one calibrated on a
+    joint that turns the servo's whole way states them."""
+    return not joint.limits_given
 
 
 def safety_text(safety: SafetySpec) -> str:

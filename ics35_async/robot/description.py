@@ -66,6 +66,8 @@ class JointSpec:
     reverse: bool = False
     min: float = -SERVO_DEGREES
     max: float = SERVO_DEGREES
+    limits_given: bool = field(default=True, compare=False)
+    """Whether the description states ``min`` or ``max`` (a file without them takes the servo's whole travel)."""
 
     @property
     def sign(self) -> int:
@@ -445,6 +447,7 @@ def _joints(source: str, value: object, lines: Mapping[str, LineSpec]) -> dict[s
         reverse = bool(r.flag("reverse"))
         low = r.number("min", -360, 360)
         high = r.number("max", -360, 360)
+        given = low is not None or high is not None  # (else the whole travel: see JointSpec.limits_given)
         r.done()
         owner = owners.get((line, sid))
         if owner is not None:
@@ -464,7 +467,9 @@ def _joints(source: str, value: object, lines: Mapping[str, LineSpec]) -> dict[s
                     f"{limit:g} joint degrees is {servo:g} servo degrees (offset {offset:g}"
                     f"{', reversed' if reverse else ''}), outside the servo's range -135..+135",
                 )
-        joints[name] = JointSpec(name=name, line=line, id=sid, offset=offset, reverse=reverse, min=low, max=high)
+        joints[name] = JointSpec(
+            name=name, line=line, id=sid, offset=offset, reverse=reverse, min=low, max=high, limits_given=given
+        )
     for line in lines:
         if not any(j.line == line for j in joints.values()):
             raise DescriptionError(source, f"lines.{line}", "no joint uses this line")
