@@ -728,6 +728,22 @@ def test_set_id_interrupted_says_whether_the_id_write_was_on_its_way(cli: Any, s
     assert [s.servo_id for s in sim.servos] == [0]
 
 
+def test_set_id_with_its_port_lost_says_whether_the_id_write_was_on_its_way(cli: Any, sim_line: Any) -> None:
+    # Lost as it surveyed the line, or as the ID command went out: only "port ... lost" was said, where Ctrl-C at
+    # the same points says whether anything was written.
+    for heard, written in ((ReadParam, False), (WriteId, True)):
+        servo = UnplugsWhenAsked(0, heard)
+        sim, url = sim_line([servo])
+        servo.line = sim
+        result = cli("--port", url, "set-id", "3", "--yes")
+        said = " ".join(result.err.split())
+        assert result.code == ExitCode.COMMUNICATION, said
+        if written:
+            assert "the ID write was on its way: the servo answers as ID 0 or as ID 3 now" in said, said
+        else:
+            assert "before the ID write: nothing was written" in said, said
+
+
 def test_set_id_on_an_empty_line_says_nothing_answered(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([])
     result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from .. import policies
 from ..bus import Bus
-from ..errors import ReplyError
+from ..errors import BusClosed, PortLost, ReplyError
 from ..policies import FoundServo, IdSurvey, Refusal, ScanReport, echo_setting_wrong
 from ..transports import rate_blind_note
 from ._common import (
@@ -348,12 +348,21 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     # once the ID command is on its way.
     asking = False
     sent_from: int | None = None
+    port_lost = False  # (the port went while the ID was surveyed or written: said as Ctrl-C is, below)
 
     def sent(old: int) -> None:
         nonlocal sent_from
         sent_from = old
 
     async def body() -> tuple[int, int]:
+        nonlocal port_lost
+        try:
+            return await write_id()
+        except (PortLost, BusClosed):
+            port_lost = True
+            raise
+
+    async def write_id() -> tuple[int, int]:
         nonlocal asking
         async with settings.bus() as bus:
             survey = await policies.survey_for_id_write(bus)
@@ -371,16 +380,19 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     try:
         old, new = run(settings, body)
     except CliError as exc:
-        if exc.code is not ExitCode.INTERRUPTED or (asking and sent_from is None):
+        # Cut short by Ctrl-C or a lost port: whether the ID write went out is said (a refusal says its own).
+        interrupted = exc.code is ExitCode.INTERRUPTED
+        if not (interrupted or port_lost) or (interrupted and asking and sent_from is None):
             raise
+        how = "interrupted" if interrupted else f"{exc.message}:"
         if sent_from is None:
-            raise CliError(ExitCode.INTERRUPTED, "interrupted before the ID write: nothing was written") from None
-        # Ctrl-C as the ID command went out, or before the new ID was seen to answer: the servo took it or not.
+            raise CliError(exc.code, f"{how} before the ID write: nothing was written", *exc.hints) from None
+        # Cut short as the ID command went out, or before the new ID was seen to answer: the servo took it or not.
         was = sent_from
         ids = f"{was},{new_id}"
         raise CliError(
-            ExitCode.INTERRUPTED,
-            f"interrupted while the ID write was on its way: the servo answers as ID {was} or as ID {new_id} now",
+            exc.code,
+            f"{how} while the ID write was on its way: the servo answers as ID {was} or as ID {new_id} now",
             f"see which with: {settings.command_line('scan', '--ids', ids, '--bauds', str(settings.baud), '--quick')}",
         ) from None
     if as_json:
