@@ -429,7 +429,7 @@ class Robot:
         freeing = [] if allow_free else [n for n, d in pose.items() if d is None]  # (by identity: any value compares)
         if freeing:  # (None frees: only where the program says it means it)
             raise InvalidArgument(f"joint {freeing[0]}: a target of None frees the joint, which takes allow_free=True")
-        checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
+        checked = {n: None if d is None else self.joints[n].check(d) for n, d in pose.items()}  # (None: allowed)
         if any(d is not None for d in checked.values()):
             self._check_watched()  # (freeing alone still reaches the lines left)
         self._refuse_tripped(n for n, d in checked.items() if d is not None)
@@ -485,6 +485,7 @@ class Robot:
         (Ctrl-C), who needs to know which servos went limp.  From what was sent, not from what the servos did:
         one that does not answer now may not have heard it; one that never answered is said apart."""
         groups: dict[str, list[str]] = {"read free": [], "freed": [], "held": [], "as found": [], "unheard": []}
+        stated = True  # (a stated angle only while every held joint still carries it: moved since, its last target)
         for name, joint in self.joints.items():
             stream = self._streams.get(joint.line)
             if stream is None:  # (the open was cut short before it made them: only reads went out)
@@ -503,12 +504,11 @@ class Robot:
                 groups["freed"].append(name)
             elif closing is not None or carried not in (None, WATCH):
                 groups["held"].append(name)
+                stated = stated and stream.target(joint.id) == self._stated.get(name)
             else:
                 groups["as found"].append(name)
         if not any(groups[group] for group in ("read free", "freed", "held")):
             return "no joint was sent anything that moves or frees it (its servos were only read)"
-        # (a stated angle only while its joint still carries it: moved since, it holds its last target)
-        stated = all(self._carried(name) == self._stated.get(name) for name in groups["held"])
         words = {
             "read free": ("was freed to read where it stands", "were freed to read where they stand"),
             "freed": ("was freed", "were freed"),
@@ -526,12 +526,6 @@ class Robot:
             for group, names in groups.items()
             if names
         )
-
-    def _carried(self, name: str) -> int | None:
-        """The target joint ``name``'s stream carries now (counts), or None before the streams are made."""
-        joint = self.joints[name]
-        stream = self._streams.get(joint.line)
-        return None if stream is None else stream.target(joint.id)
 
     def _heard_from(self, name: str) -> bool:
         """Whether ``name``'s servo has answered anything since the robot opened: a position, or the open's probe
