@@ -1671,6 +1671,33 @@ def test_ctrl_c_during_a_scan_on_a_narrow_terminal_takes_its_progress_bar_off_th
     assert "" not in screen[: next(k for k, line in enumerate(screen) if line.startswith("error:"))], said
 
 
+@pytest.mark.parametrize("json_output", [False, True], ids=["text", "json"])
+def test_ctrl_c_during_a_scan_names_the_servos_it_had_found(tmp_path: Path, json_output: bool) -> None:
+    # Servos 1 and 3 answer at 115200 baud; the scan goes on to 625000, where nothing answers its ID read for a
+    # whole allowance.  Ctrl-C there said only "error: interrupted": the two servos found were lost with it.
+    # (-v: the log says when the line opens at 625000 baud, a JSON scan drawing no progress bar)
+    args = ["-v", "--port", "sim://?ids=1,3", "--timeout", "1", "scan", "--bauds", "115200,625000"]
+    out = tmp_path / "out.json"
+    code, written = typed_on_a_terminal(
+        [*args, *(["--json"] if json_output else [])],
+        [("at 625000 baud (", b""), (scaled(0.2), b"\x03")],
+        stdout=out if json_output else None,
+    )
+    screen = [line for line in screen_of(written) if line]
+    said = "\n".join(screen)
+    assert code == 130 and "Traceback" not in written, said
+    flat = " ".join(said.split())  # (wrapped at words)
+    error = flat[flat.index("error: interrupted") :]
+    assert "servo(s) 1, 3" in error, said
+    assert error.endswith("scan --bauds 115200"), said  # (the rate they answered at: their settings in a second)
+    if json_output:
+        report = json.loads(out.read_text())
+        assert report["interrupted"] is True, report
+        assert report["found"] == [{"id": 1, "baud": 115200}, {"id": 3, "baud": 115200}], report
+    else:
+        assert "servo(s) 1, 3 answered at 115200 baud" in flat[: flat.index("error: interrupted")], said
+
+
 def test_a_second_ctrl_c_while_monitor_asks_its_ids_leaves_at_once() -> None:
     keys = [("asking IDs 1-20", b""), (scaled(0.3), b"\x03"), ("Ctrl-C again", b"\x03")]
     began = time.monotonic()

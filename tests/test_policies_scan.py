@@ -8,6 +8,7 @@ from collections.abc import AsyncIterator, Iterator
 from contextlib import AbstractAsyncContextManager
 from typing import Any
 
+import anyio
 import pytest
 
 from ics35_async import open_bus
@@ -439,6 +440,39 @@ async def test_a_port_lost_part_way_keeps_the_servos_found_before_it(lines: Any,
     if pulled_at is ReadEeprom:  # the probes were over: servo 1's EEPROM was read before the loss
         assert report.servos[0].eeprom == sim.servo(1).eeprom
     assert isinstance(report.lost, (PortLost, BusClosed)), report.lost
+
+
+async def test_a_cancelled_scan_has_told_on_found_of_each_servo_it_found(lines: Any) -> None:
+    # A program cancels a scan (a person's Ctrl-C) as it moves on to 625000 baud: servos 1 and 3 had answered at
+    # 115200, heard as they did, not only in a report the cancel never lets the scan return.
+    sim = lines([VirtualServo(1), VirtualServo(3), VirtualServo(7, baud_rate=625000)])
+    found: list[tuple[int, int]] = []
+    with anyio.CancelScope() as scope:
+        plain = opener(sim)
+
+        def open_at(baud: int) -> AbstractAsyncContextManager[Line]:
+            if baud == 625000:
+                scope.cancel()
+            return plain(baud)  # type: ignore[no-any-return]
+
+        await scan(open_at, bauds=[115200, 625000], ids=range(8), on_found=lambda i, baud: found.append((i, baud)))
+    assert scope.cancelled_caught
+    assert found == [(1, 115200), (3, 115200)]
+
+
+async def test_a_servo_found_only_by_the_second_look_is_told_to_on_found_too(lines: Any) -> None:
+    # Servo 3 answers past the probes' short wait: the silent IDs' second look (the normal allowance) finds it.
+    sim = lines([VirtualServo(1), VirtualServo(3)], faults="late@3:1.0", late_delay=0.012, realtime=True)
+    found: list[tuple[int, int]] = []
+    report = await scan(
+        opener(sim, adapter_latency=0.100, quiet_time=0.030),
+        bauds=[115200],
+        ids=range(4),
+        read_eeprom=False,
+        on_found=lambda i, baud: found.append((i, baud)),
+    )
+    assert [s.servo_id for s in report.servos] == [1, 3]
+    assert sorted(found) == [(1, 115200), (3, 115200)]
 
 
 async def test_a_port_lost_between_two_rates_of_one_reopened_line_keeps_the_servos_found_before_it(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import replace
 
 import click
@@ -56,8 +56,10 @@ async def scan_with_progress(
     read_eeprom: bool,
     timeout: float | None,
     show_progress: bool,
+    on_found: Callable[[int, int], object] | None = None,
 ) -> ScanReport:
-    """The library's scan, opening the port at each rate, with a progress bar on a terminal once it has opened."""
+    """The library's scan, opening the port at each rate, with a progress bar on a terminal once it has opened
+    (``on_found``: the library's, each servo as it answers)."""
     with scan_progress(bauds, len(ids), show=show_progress) as steps:
 
         @contextlib.asynccontextmanager
@@ -66,7 +68,9 @@ async def scan_with_progress(
                 steps.line_open()
                 yield bus
 
-        return await policies.scan(open_at, bauds=bauds, ids=ids, read_eeprom=read_eeprom, on_probe=steps.advance)
+        return await policies.scan(
+            open_at, bauds=bauds, ids=ids, read_eeprom=read_eeprom, on_probe=steps.advance, on_found=on_found
+        )
 
 
 def baud_cell(s: FoundServo) -> str:
@@ -237,15 +241,28 @@ def scan(
     With --ids, a rate where none of them answers gets an ID read (if not already
     asked) to tell whether a servo at another ID is there.
     Exit code 4 when nothing answers.  A port lost part-way: the servos found
-    before it are listed, then the error.
+    before it are listed, then the error; Ctrl-C part-way: the servos that had
+    answered are named, with the rates they answered at.
     """
     settings = settings_of(ctx)
-    report = run(
-        settings,
-        lambda: scan_with_progress(
-            settings, bauds, ids, read_eeprom=not quick, timeout=timeout, show_progress=not as_json
-        ),
-    )
+    found: dict[int, list[int]] = {}  # baud -> the IDs that answered there so far (what Ctrl-C leaves to say)
+    try:
+        report = run(
+            settings,
+            lambda: scan_with_progress(
+                settings,
+                bauds,
+                ids,
+                read_eeprom=not quick,
+                timeout=timeout,
+                show_progress=not as_json,
+                on_found=lambda i, baud: found.setdefault(baud, []).append(i),
+            ),
+        )
+    except CliError as exc:
+        if exc.code is not ExitCode.INTERRUPTED or not found:
+            raise
+        raise _interrupted_scan(settings, found, as_json=as_json) from None
     # The commands the notes name must hear what the scan heard: a longer allowance than the line's (a slow
     # link) goes into them; a shorter one (a quick scan) leaves them the line's own.
     named = settings if timeout is None or timeout <= settings.timeout else replace(settings, timeout=timeout)
@@ -289,6 +306,31 @@ def scan(
             failure.hints = [every if hint == NO_REPLY_HINTS[1] else hint for hint in failure.hints]
         raise failure
     return 0
+
+
+def _interrupted_scan(settings: Settings, found: dict[int, list[int]], *, as_json: bool) -> CliError:
+    """Ctrl-C part-way through a scan: the servos that had answered are said (at the rates they answered at; their
+    EEPROMs not read, so a line that ignores rates shows one servo at each), with the command that lists them with
+    their settings, at those rates only."""
+    if as_json:
+        emit_json(
+            {
+                "port": settings.port,
+                "interrupted": True,
+                "found": [{"id": i, "baud": baud} for baud, at in found.items() for i in sorted(at)],
+            }
+        )
+    else:
+        for baud, at in found.items():
+            say(f"servo(s) {ids_text(sorted(at))} answered at {baud} baud", to=out)
+    every = sorted({i for at in found.values() for i in at})
+    shown = "listed" if as_json else "shown above"
+    again = settings.command_line("scan", "--bauds", ",".join(map(str, found)))
+    return CliError(
+        ExitCode.INTERRUPTED,
+        f"interrupted before the scan ended: servo(s) {ids_text(every)} had answered ({shown})",
+        f"to see their settings: {again}",
+    )
 
 
 # --------------------------------------------------------------------------- set-id

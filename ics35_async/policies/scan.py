@@ -83,6 +83,7 @@ ID_READ_MIN_IDS = 8
 
 ProbeCallback = Callable[[int], None]  # called with the number of IDs just finished
 RateCallback = Callable[[int], object]  # called with the baud rate a search of other rates tries next
+FoundCallback = Callable[[int, int], object]  # called with (ID, baud) as an ID answers a probe at that rate
 
 
 def trying_rate(line_baud: int, baud: int, previous: int | None = None) -> str:
@@ -258,19 +259,33 @@ async def probe_ids(
     """
     gate = anyio.Semaphore(check_int("concurrency", concurrency, 1, 32))
     wanted = [protocol.check_id(i) for i in ids]
-    rate = await _probe_rate(line, wanted, gate, id_read_first, on_probe)
+    rate = await _probe_rate(line, wanted, gate, id_read_first, on_probe, None)
     if rate.lost is not None:
         raise rate.lost
     return rate
 
 
 async def _probe_rate(
-    line: Line, wanted: list[int], gate: anyio.Semaphore, id_read_first: bool | None, on_probe: ProbeCallback | None
+    line: Line,
+    wanted: list[int],
+    gate: anyio.Semaphore,
+    id_read_first: bool | None,
+    on_probe: ProbeCallback | None,
+    on_found: FoundCallback | None,
 ) -> RateScan:
-    """:func:`probe_ids`, but a line lost part-way is returned (``lost``) with the IDs that answered before it."""
+    """:func:`probe_ids`, but a line lost part-way is returned (``lost``) with the IDs that answered before it;
+    ``on_found(id, baud)`` hears each ID the first time it answers."""
     heard: list[int] = []
+    baud = int(line.baudrate)
+
+    def answered(i: int) -> None:
+        if i not in heard:
+            heard.append(i)
+            if on_found is not None:
+                on_found(i, baud)
+
     try:
-        return await _probe_all(line, wanted, gate, id_read_first, on_probe, heard)
+        return await _probe_all(line, wanted, gate, id_read_first, on_probe, answered)
     except (BusClosed, PortLost) as exc:
         return RateScan(int(line.baudrate), answered=tuple(i for i in wanted if i in heard), lost=exc)
 
@@ -281,9 +296,9 @@ async def _probe_all(
     gate: anyio.Semaphore,
     id_read_first: bool | None,
     on_probe: ProbeCallback | None,
-    heard: list[int],
+    answered: Callable[[int], None],
 ) -> RateScan:
-    """The body of :func:`probe_ids`; ``heard`` gets each ID that answers as it does."""
+    """The body of :func:`probe_ids`; ``answered(id)`` hears each answer as it comes (a first look's or a second's)."""
     rx_before = line.stats.total.bytes_rx
     if id_read_first is None:
         id_read_first = len(wanted) >= ID_READ_MIN_IDS
@@ -302,12 +317,13 @@ async def _probe_all(
     # The first look at each ID: at most ``concurrency`` queued at once, each counted for the progress display.
     async def probe(i: int, short: bool) -> ReplyError | None:
         if not short:
-            return await _probe(line, i, short=False)
-        async with gate:
-            error = await _probe(line, i)
+            error = await _probe(line, i, short=False)
+        else:
+            async with gate:
+                error = await _probe(line, i)
+            _done(on_probe, 1)
         if error is None:
-            heard.append(i)
-        _done(on_probe, 1)
+            answered(i)
         return error
 
     outcomes, evidence = await ask_each(line, wanted, probe)
@@ -356,6 +372,7 @@ async def scan(
     ids: Iterable[int] = ALL_IDS,
     read_eeprom: bool = True,
     on_probe: ProbeCallback | None = None,
+    on_found: FoundCallback | None = None,
 ) -> ScanReport:
     """Probe ``ids`` at each of ``bauds``, opening the line at each rate with ``open_at(baud)``.
 
@@ -365,7 +382,10 @@ async def scan(
     a missing port, a denied permission, a busy port or a path that is no serial port raises, and so does
     the first rate's error when no rate opened at all (a refused bridge, a
     malformed port name: nothing about the rates).  ``on_probe`` hears each
-    probe's outcome as it comes.
+    probe's outcome as it comes; ``on_found(id, baud)`` hears each ID as it
+    first answers at a rate, before its EEPROM is read (so that a scan cut
+    short, cancelled, loses no servo it had found: on a line that ignores
+    rates one servo is heard at every rate, where the report lists it once).
 
     With ``ids`` fewer than every ID, a rate where none of them answers (nor comes
     back garbled) gets one ID read, unless the probes' own ID read was answered
@@ -405,7 +425,7 @@ async def scan(
                 _done(on_probe, len(wanted))
                 continue
             rate_blind = not carries_line_settings(getattr(line, "port", None))
-            rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe)
+            rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe, on_found)
             if len(set(wanted)) < len(ALL_IDS):
                 rate = await check_other_ids(line, rate, wanted)
             rates.append(rate)
