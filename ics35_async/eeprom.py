@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from .errors import InvalidArgument, MalformedEeprom, UnsafeOperation
-from .units import check_int, whole_number
+from .units import check_int, named_with_the_one_meant, whole_number
 
 EEPROM_SIZE = 64
 HEADER = 0x5A
@@ -423,7 +423,8 @@ class Eeprom:
             raise UnsafeOperation("the factory calibration bytes are protected and cannot be changed")
         unknown = set(changes) - set(_LAYOUT)
         if unknown:
-            raise InvalidArgument(f"unknown EEPROM field(s): {', '.join(sorted(unknown))}")
+            told = (named_with_the_one_meant(name, _LAYOUT) for name in sorted(unknown))
+            raise InvalidArgument(f"unknown EEPROM field(s): {', '.join(told)}")
         clean: dict[str, Any] = {}
         for name, value in changes.items():
             if name == "baud_rate":

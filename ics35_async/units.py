@@ -130,17 +130,28 @@ def check_ids(name: str, ids: object) -> list[int]:
     return [check_int("servo ID", i, 0, 31) for i in ids]
 
 
+def closest_name(name: str, known: Iterable[str]) -> str | None:
+    """The ``known`` name a mistyped ``name`` most likely meant, if one is close enough."""
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return close[0] if close else None
+
+
+def named_with_the_one_meant(name: str, known: Iterable[str]) -> str:
+    """``name`` as an error quotes it, with the ``known`` name it is closest to, if one is close enough:
+    ``strech_gain (did you mean stretch_gain?)``."""
+    close = closest_name(name, known)
+    return f"{name} (did you mean {close}?)" if close else name
+
+
 def unknown_options(what: str, unknown: Iterable[str], known: Iterable[str], meant: Mapping[str, str] = {}) -> str:
     """What an :class:`InvalidArgument` says of keyword options ``unknown`` to ``what`` (``"open_bus"``): each
     with the ``known`` one it is closest to, or what ``meant`` says of it (an option of the ``ics35``
     commands a program passes by the same name), so the reader learns what to write, not only what not to."""
     known = sorted(known)
-    told = []
-    for name in sorted(unknown):
-        close = difflib.get_close_matches(name, known, n=1)
-        told.append(
-            f"{name} ({meant[name]})" if name in meant else f"{name} (did you mean {close[0]}?)" if close else name
-        )
+    told = [
+        f"{name} ({meant[name]})" if name in meant else named_with_the_one_meant(name, known)
+        for name in sorted(unknown)
+    ]
     return f"unknown {what} option(s): {', '.join(told)}"
 
 

@@ -77,6 +77,10 @@ DAMAGED: dict[str, tuple[Damage, str]] = {
     ),
     "flags_names disagree": (_set("flags_names", ["REVERSE"]), "'flags_names' is ['REVERSE']"),
     "a field missing": (lambda doc: doc["fields"].pop("damping"), "lacks field(s): damping"),
+    "a field misspelt": (
+        lambda doc: doc["fields"].update(dampin=doc["fields"].pop("damping")),
+        "unknown EEPROM field(s) in the backup: dampin (did you mean damping?)",
+    ),
     "a field not a number": (_field("speed", "fast"), "field speed must be an integer"),
     "saved ID out of range": (_set("servo_id", 40), "'servo_id' must be an ID 0..31"),
 }

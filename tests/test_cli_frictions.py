@@ -349,6 +349,16 @@ def test_a_field_set_twice_or_a_table_asked_as_json_is_refused_before_anything_i
     assert not both.out
 
 
+@pytest.mark.parametrize(
+    ("assignment", "meant"),
+    [("strech_gain=50", "stretch_gain"), ("temprature_limit=80", "temperature_limit"), ("flags+=REVERS", "REVERSE")],
+)
+def test_a_misspelt_eeprom_field_or_flag_names_the_one_meant(cli: Any, assignment: str, meant: str) -> None:
+    # `eeprom set 1 strech_gain=50` listed all 18 fields, where one was meant.
+    said = cli("--port", "sim://", "eeprom", "set", "1", assignment, "--yes")
+    assert said.code == ExitCode.USAGE and f"did you mean {meant}?" in " ".join(said.err.split()), said.err
+
+
 def test_set_given_a_field_assignment_or_the_position_points_at_the_command_that_takes_it(cli: Any) -> None:
     # `ics35 set 1 speed=60` (eeprom set's form) and `ics35 set 1 position 8000` got only the list of parameters.
     said = " ".join(cli("set", "1", "speed=60").err.split())

@@ -485,6 +485,8 @@ def test_unknown_field_refused() -> None:
         FACTORY.replace(header=0x5A)
     with pytest.raises(InvalidArgument, match="unknown EEPROM field"):
         FACTORY.replace(speed=10, colour="red")
+    with pytest.raises(InvalidArgument, match=r"strech_gain \(did you mean stretch_gain\?\)"):
+        FACTORY.replace(strech_gain=50)
 
 
 def test_replace_with_nothing_is_equal() -> None:

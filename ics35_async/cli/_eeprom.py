@@ -17,6 +17,7 @@ import click
 from ..eeprom import EEPROM_FIELDS, READ_ONLY_FLAGS, BaudRate, Flags
 from ..errors import InvalidArgument, MalformedEeprom
 from ..policies import check_changes, plan_eeprom_write
+from ..units import closest_name
 from ._common import SERVO_ID, CliError, NegativeNumbersCommand, json_option, run, settings_of, yes_option
 from ._eeprom_backup import dump, restore
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
@@ -58,8 +59,11 @@ def parse_flag_names(text: str) -> int:
         try:
             flag = Flags[part]
         except KeyError:
-            names = ", ".join(f.name or "" for f in Flags if not f & READ_ONLY_FLAGS)
-            raise InvalidArgument(f"unknown flag {part!r}; flags: {names}") from None
+            names = [f.name or "" for f in Flags if not f & READ_ONLY_FLAGS]
+            close = closest_name(part, names)
+            if close is not None:
+                raise InvalidArgument(f"unknown flag {part!r}: did you mean {close}?") from None
+            raise InvalidArgument(f"unknown flag {part!r}; flags: {', '.join(names)}") from None
         bits |= flag
     return bits
 
@@ -75,6 +79,9 @@ def parse_assignment(text: str, edit: Edit) -> None:
     if not eq or not value.strip():
         raise InvalidArgument(f"{text!r} is not field=value")
     if name not in EEPROM_FIELDS:
+        close = closest_name(name, [*EEPROM_FIELDS, *FIELD_ALIASES])
+        if close is not None:
+            raise InvalidArgument(f"unknown EEPROM field {name!r}: did you mean {FIELD_ALIASES.get(close, close)}?")
         raise InvalidArgument(f"unknown EEPROM field {name!r}; fields: {', '.join(EEPROM_FIELDS)}")
     if op and name != "flags":
         raise InvalidArgument(f"only flags takes {op}= (flags+=NAME sets a flag, flags-=NAME clears one)")

@@ -40,6 +40,7 @@ from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation
 from ..protocol.wire import id_ranges
 from ..transports import carries_line_settings
+from ..units import named_with_the_one_meant
 from .eeprom_write import EepromPlan, back_at_rate, check_changes, plan_eeprom_write
 from .failure_kinds import Line, reopening
 from .scan import ALL_BAUDS, probe_ids, scan
@@ -183,7 +184,8 @@ def fields_from_document(doc: object) -> dict[str, int]:
         raise InvalidArgument("no 'fields' object (every backup carries the fields its raw image decodes to)")
     unknown = set(fields) - set(EEPROM_FIELDS)
     if unknown:
-        raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(sorted(unknown))}")
+        told = (named_with_the_one_meant(name, EEPROM_FIELDS) for name in sorted(unknown))
+        raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(told)}")
     missing = set(EEPROM_FIELDS) - set(fields)
     if missing:
         raise InvalidArgument(f"the backup lacks field(s): {', '.join(sorted(missing))}")
