@@ -210,6 +210,18 @@ def test_restore_to_a_silent_servo_names_restores_own_syntax(cli: Any, sim_line:
     assert "nothing was written" in result.err  # it stopped reading the servo, before any write
 
 
+def test_restore_to_its_own_servo_at_another_rate_says_the_rate_not_another_servo(cli: Any, tmp_path: Path) -> None:
+    # Servo 1 moved to 625000 baud since its backup: the restore at 115200 said where it answers, then offered to
+    # write the file "to another servo", when it is this servo's own file at another rate.
+    url = "sim://another-rate?ids=1&baud=625000"
+    backup = tmp_path / "one.json"
+    assert cli("--port", url, "--baud", "625000", "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.WRONG_BAUD and "pass --baud 625000" in said, said
+    assert "another servo" not in said, said
+
+
 def test_read_pose_has_no_float_noise_and_no_negative_zero(tmp_path: Path) -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], name="frictions-pose")
     robot_file = tmp_path / "robot.toml"

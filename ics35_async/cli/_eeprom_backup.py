@@ -514,7 +514,8 @@ def restore(
                 exc.hints.insert(
                     1, f"to restore the others without servo {silent[0]}, move {missing[0].source} out of {args[0]}"
                 )
-        if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
+        # (Not where the servo answers at another rate: it is the file's own servo, and the rate is the mend.)
+        if exc.code is ExitCode.NO_REPLY and len(args) == 1 and not bulk:
             source = backups[0].source
             exc.hints.append(
                 f"{source} is a backup of servo {backups[0].saved_id}; to write it to another servo: "
