@@ -399,6 +399,20 @@ def test_bulk_restore_checks_every_file_before_writing_any(cli: Any, sim_line: A
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
 
 
+@pytest.mark.parametrize(("now", "new"), [(625000, 115200), (115200, 625000)])
+def test_a_baud_change_says_what_later_commands_need(cli: Any, now: int, new: int) -> None:
+    # Back to 115200, the warning said "every later command needs --baud 115200": the default, given by no --baud.
+    url = f"sim://later-baud-{now}?ids=1&baud={now}"
+    result = cli("--port", url, "--baud", str(now), "eeprom", "set", "1", f"baud={new}", "--change-baud", "--yes")
+    said = " ".join(result.err.split())
+    assert result.code == 0, said
+    if new == 115200:
+        assert "needs --baud" not in said and "115200 baud, the default (no --baud)" in said, said
+        assert "--baud 115200" not in result.out and "115200 baud (the default: no --baud)" in result.out, result.out
+    else:
+        assert "every later command needs --baud 625000" in said, said
+
+
 def test_several_servos_need_a_directory_or_one_file(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url = sim_line([1, 2])
     result = cli("--port", url, "eeprom", "dump", "1-2")

@@ -38,8 +38,10 @@ from ._eeprom_view import baud_text, diff_table, flags_text
 
 def _later_commands(new: int) -> str:
     """What a change to baud rate ``new`` asks of every command after it (the servo's side the library says)."""
-    hs = " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
-    return f"every later command needs --baud {new}{hs}, and servos at different rates cannot share one bus session"
+    shared = "servos at different rates cannot share one bus session"
+    if new == BaudRate.B115200:  # (the factory rate, --baud's default: a command without --baud runs at it)
+        return f"every later command talks to it at {new} baud, the default (no --baud), and {shared}"
+    return f"every later command needs --baud {new} and 625000/1250000 need the ICS USB adapter HS, and {shared}"
 
 
 CHANGE_BAUD_ADVICE = ("to do it anyway, add --change-baud",)
@@ -78,7 +80,7 @@ def show_plan(
     however asked, a new baud rate."""
     if plan.baud != line_baud:
         say(
-            f"servo {plan.servo_id} answers at {plan.baud:,} baud (the line's rate is {line_baud:,}): "
+            f"servo {plan.servo_id} answers at {plan.baud} baud (the line's rate is {line_baud}): "
             "it is read, written and verified at its own rate",
             to=err if as_json else out,
         )
@@ -225,7 +227,7 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
     if outcome in short_of_verified:
         say(f"servo {sid}: {short_of_verified[outcome]}", to=out)
         return
-    elsewhere = f" at {report['baud']:,} baud" if report.get("baud", settings.baud) != settings.baud else ""
+    elsewhere = f" at {report['baud']} baud" if report.get("baud", settings.baud) != settings.baud else ""
     say(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified{elsewhere}", to=out)
     new_id = changes.get("servo_id", [sid, sid])[1]
     now_id = new_id if report.get("answers_as") == [new_id] else sid  # (the ID it answers as now)
@@ -237,11 +239,12 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         say(escape(note), to=out)
     if "baud_rate" in changes:
         new = changes["baud_rate"][1]
+        use = "the default: no --baud" if new == BaudRate.B115200 else f"use --baud {new}"
         if report.get("answers_at_new_rate"):
-            say(f"it already answers at {new} baud: use --baud {new}", to=out)
+            say(f"it already answers at {new} baud ({use})", to=out)
         else:
             checked = f" (not checked: {report['new_rate_error']})" if report.get("new_rate_error") else ""
-            say(f"power-cycle the servo: from then on it talks only at {new} baud (use --baud {new}){checked}", to=out)
+            say(f"power-cycle the servo: from then on it talks only at {new} baud ({use}){checked}", to=out)
     if "servo_id" in changes:
         old, new = changes["servo_id"]
         answers = report.get("answers_as", [])
