@@ -444,16 +444,31 @@ def test_teach_goes_on_when_a_pose_is_not_captured_for_readings_that_disagree(
     assert "hold the robot still and press Enter again" in said, said
 
 
+def test_teach_records_a_joint_at_its_calibrated_end_at_the_limit_without_a_warning(
+    rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A joint posed at the end of a calibrated range stands up to a tenth of a degree and a count past a limit
+    # (calibrate rounds limits inward): teach warned "beyond its limits" at every pose that used the whole range.
+    sims, _ = rig
+    past = joint_position(JOINTS["hip"], 30.1)  # (the end the limit 30 was rounded from, a count further still)
+    sims.servo("hip").move_by_hand(past)
+    assert 30.1 < joint_degrees(JOINTS["hip"], past) < 30.15
+    keyframes = captures(sims, ["hip"])
+    assert keyframes[0].pose == {"hip": 30.0}  # recorded at the limit
+    said = " ".join(capsys.readouterr().err.split())
+    assert "beyond its limits" not in said, said
+
+
 def test_teach_says_how_far_past_its_limit_a_joint_stands_to_the_count(
     rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # A joint posed at the end of a calibrated range stands a count or two past a limit (calibrate rounds limits
-    # inward): "joint hip is at 30.0, beyond its limits -30..30" said it was at the limit and beyond it at once.
+    # Further past than calibrate's rounding: said, to the count ("at 30.0, beyond its limits -30..30" said it was
+    # at the limit and beyond it at once).
     sims, _ = rig
-    past = joint_position(JOINTS["hip"], 30.0) + 1
+    past = joint_position(JOINTS["hip"], 30.2) + 1
     sims.servo("hip").move_by_hand(past)
     standing = joint_degrees(JOINTS["hip"], past)
-    assert 30.0 < standing < 30.05  # (a tenth of a degree would not tell it from the limit)
+    assert 30.2 < standing < 30.25
     keyframes = captures(sims, ["hip"])
     assert keyframes[0].pose == {"hip": 30.0}  # recorded at the limit
     said = " ".join(capsys.readouterr().err.split())

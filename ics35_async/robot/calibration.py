@@ -69,6 +69,13 @@ class NarrowRange(InvalidArgument):
         self.span = span
 
 
+# Calibrated limits are rounded inward to this step, so that the file reads as a person writes it.
+LIMIT_STEP = 0.1
+# How far past a calibrated limit a joint can read at the very end it was calibrated at: the rounding, and a count
+# of the potentiometer's reading either way.  A reading within it is at the limit, not beyond it.
+AT_THE_LIMIT = LIMIT_STEP + 1 / units.COUNTS_PER_DEGREE
+
+
 def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -> JointSpec:
     """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
     ``low``..``high`` (servo degrees), rounded inward to 0.1 degree.
@@ -92,8 +99,9 @@ def calibrated_limits(joint: JointSpec, offset: float, low: float, high: float) 
     """``min`` and ``max`` for ``joint`` given ``offset``: ``low``..``high`` (servo degrees) in its joint degrees,
     rounded inward to 0.1 degree and within the servo's travel (a range too narrow is not refused here)."""
     ends = sorted(((s - offset) * joint.sign) for s in (low, high))
-    lo = math.ceil(round(ends[0] * 10, 6)) / 10
-    hi = math.floor(round(ends[1] * 10, 6)) / 10
+    steps = 1 / LIMIT_STEP
+    lo = math.ceil(round(ends[0] * steps, 6)) / steps
+    hi = math.floor(round(ends[1] * steps, 6)) / steps
     # Within the servo's travel whatever the rounding did.
     bound = sorted(((e - offset) * joint.sign) for e in (-SERVO_DEGREES, SERVO_DEGREES))
     return max(lo, bound[0]), min(hi, bound[1])
