@@ -201,6 +201,21 @@ def test_pty_master_closed_is_a_hangup(pty: Pty) -> None:
         port.close()
 
 
+def test_a_write_to_a_hung_up_port_says_so_in_the_reads_words(pty: Pty) -> None:
+    # The read of a port gone said "the serial port hung up (device disconnected?)", a write to it the OS's
+    # "Input/output error": one adapter pulled out, told two ways by which call met it first.
+    port = open_at(pty.port)
+    try:
+        pty.close()
+        with pytest.raises(OSError, match=r"hung up \(device disconnected\?\)") as lost:
+            for _ in range(100):  # (until the write meets the hang-up, not only the kernel's buffer)
+                port.write(b"\x80")
+                port.write_pending()
+        assert lost.value.errno == errno.EIO
+    finally:
+        port.close()
+
+
 def test_input_flushed_between_readiness_and_read_is_not_a_hangup(pty: Pty) -> None:
     """The resync's flush can empty the input after the driver saw it readable and before it reads.
 

@@ -45,7 +45,7 @@ from ..protocol import Command
 from ..tasks import despite_cancellation
 from ..terminal import said_at_the_end
 from ..transports.opening import Port, open_port
-from ..transports.tty_port import TtyPort
+from ..transports.tty_port import TtyPort, port_gone
 from ..transports.wire_device import WireDevice
 from .burst import FAILED, PATH_NAME, BurstRunner
 from .clock import now
@@ -395,7 +395,7 @@ class DriverCore:
         if not isinstance(port, TtyPort):
             return
         if burst.status == FAILED:
-            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))  # (the executor's write or read)
+            self._lose(port, port_gone(burst.errno))  # (the executor's write or read)
             return
         self._after(out)
 

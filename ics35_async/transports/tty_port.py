@@ -110,6 +110,20 @@ def hung_up(fd: int) -> bool:
     return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
 
 
+# The errors a tty gives once its device has gone (an adapter pulled out, a pty's other end closed).
+GONE_ERRNOS = frozenset({errno.EIO, errno.ENXIO, errno.ENODEV})
+
+
+def port_gone(code: int | None) -> OSError:
+    """The error a read or write of a tty that failed with ``code`` raises: for a device gone, in one wording
+    whichever call met it first (the read's hang-up and the write's "Input/output error" were one adapter pulled
+    out); any other failure in the system's words."""
+    if code in GONE_ERRNOS:
+        return OSError(code, "the serial port hung up (device disconnected?)")
+    code = errno.EIO if code is None else code
+    return OSError(code, os.strerror(code))
+
+
 class TtyPort:
     """A tty or pty that pyserial opened, read and written on its descriptor.
 
@@ -151,12 +165,14 @@ class TtyPort:
             data = os.read(self.fd, READ_SIZE)
         except (BlockingIOError, InterruptedError):
             return b""
+        except OSError as exc:
+            raise port_gone(exc.errno) from exc
         if not data:
             # A raw tty (VMIN=0, VTIME=0) reads 0 bytes when nothing waits, and when its input was
             # flushed (a resync) between a readiness event and this read (Linux returns 0 there
             # even with O_NONBLOCK): only POLLHUP is a hangup.
             if hung_up(self.fd):
-                raise OSError(errno.EIO, "the serial port hung up (device disconnected?)")
+                raise port_gone(errno.EIO)
             return b""
         marks = self._marks
         if marks is not None and (0xFF in data or marks.pending):
@@ -173,6 +189,8 @@ class TtyPort:
             n = os.write(self.fd, data)
         except (BlockingIOError, InterruptedError):
             n = 0
+        except OSError as exc:
+            raise port_gone(exc.errno) from exc
         if n == len(data):
             return True
         self.pending += data[n:]
@@ -185,6 +203,8 @@ class TtyPort:
                 n = os.write(self.fd, self.pending)
             except (BlockingIOError, InterruptedError):
                 return False
+            except OSError as exc:
+                raise port_gone(exc.errno) from exc
             del self.pending[:n]
         return not self.pending
 
