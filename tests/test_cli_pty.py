@@ -206,7 +206,7 @@ def demo_interrupted(
     [
         (["demo"], ["note: no --port given: this is the built-in simulator", "demo: wave on 32 servo(s)"], ""),
         (["demo"], ["note: no --port given: this is the built-in simulator", "demo: wave on 32 servo(s)"], "1"),
-        (["teach", "{robot}", "{taught}", "--yes"], ["the joints are free: pose the robot by hand", "teach: wave"], ""),
+        (["teach", "{robot}", "{taught}", "--yes"], ["the joints are free: pose the robot by hand", "teach: /"], ""),
     ],
     ids=["demo", "demo-unbuffered", "teach"],
 )
@@ -1260,7 +1260,8 @@ def test_q_typed_on_a_narrow_terminal_leaves_teachs_view_whole_and_its_last_word
     screen = [line for line in screen_of(written, width=NARROW) if line]
     said = "\n".join(screen)
     assert code == 5, said  # (refused: no pose captured)
-    assert sum(line.startswith("teach: wave.json") for line in screen) == 1, said
+    # (the title: the file as typed, cut at its start where the terminal is too narrow for it)
+    assert sum(line.endswith("/wave.json") for line in screen) == 1, said
     end = next(k for k, line in enumerate(screen) if line.startswith("error: no pose captured"))
     assert screen[end - 1].startswith("t=") and screen[end - 1].endswith("0 pose(s) captured"), said
     assert "q" not in [line.strip() for line in screen], said
@@ -1294,6 +1295,18 @@ def test_teachs_clock_reads_the_motions_time_the_poses_it_records_get(tmp_path: 
     assert taught[1] - 0.05 <= clock[-1] <= taught[1] + scaled(1.0), (taught, clock, said)
 
 
+def test_teachs_title_names_the_motion_file_as_typed_its_folder_too(tmp_path: Path) -> None:
+    # `ics35 teach arm.toml motions/wave.json` titled its view "teach: wave.json": which wave.json, of the folders
+    # a person keeps motions in, was left to guess.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    (tmp_path / "motions").mkdir()
+    args = ["teach", "arm.toml", "motions/wave.json", "--yes"]
+    code, written = typed_on_a_terminal(args, [("0 pose(s) captured", b"q\r")], cwd=tmp_path)
+    screen = [line for line in screen_of(written) if line]
+    assert code == 5 and "teach: motions/wave.json" in screen, "\n".join(screen)  # (5: no pose captured)
+
+
 MOTION_NAME = "the_walking_gait_of_the_hexapod_on_both_of_its_lines"
 ROBOT_NAME = "hexapod_on_its_two_lines_left_and_right"
 
@@ -1302,11 +1315,16 @@ ROBOT_NAME = "hexapod_on_its_two_lines_left_and_right"
     ("command", "motion", "expected"),
     [
         # (each part fits the terminal, the whole does not: a line each, neighbours sharing one where they fit)
-        ("teach", f"{MOTION_NAME}.json", ["teach:", f"{MOTION_NAME}.json"]),
+        # (teach's file as typed, here a whole path: cut at its start, {file} below)
+        ("teach", f"{MOTION_NAME}.json", ["teach:", "{file}"]),
         ("play", MOTION_NAME, [f"play {MOTION_NAME}", f"on {ROBOT_NAME}: 2 joint(s)"]),
         # (a part wider than the terminal by itself: a name cut at its end, a file's cut at its start, since its
         # end names it; each with an ellipsis)
-        ("teach", f"a_long_motion_for_{MOTION_NAME}.json", ["teach:", "…" + f"for_{MOTION_NAME}.json"[-59:]]),
+        (
+            "teach",
+            f"a_long_motion_for_{MOTION_NAME}.json",
+            ["teach:", "{file}"],
+        ),
         ("play", f"a_long_motion_for_{MOTION_NAME}", [f"play a_long_motion_for_{MOTION_NAME}"[:59] + "…"]),
         # (a motion without a name: its file's path, after "play")
         ("play", None, ["play", "…" + f"/{MOTION_NAME}_v2.json"[-59:], f"on {ROBOT_NAME}: 2 joint(s)"]),
@@ -1322,6 +1340,7 @@ def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
     robot.write_text(f'name = "{ROBOT_NAME}"\n{CALIBRATED}')
     if command == "teach":
         args, keys = ["teach", str(robot), str(tmp_path / motion), "--yes"], [("0 pose(s) captured", b"q\r")]
+        expected = [part.format(file="…" + str(tmp_path / motion)[-(NARROW - 1) :]) for part in expected]
     else:
         played = tmp_path / ("motion.json" if motion is not None else f"{MOTION_NAME}_v2.json")
         keyframes = [{"time": 0.5, "pose": {"a": 5, "b": 5}}]

@@ -323,7 +323,7 @@ def test_teach_on_a_terminal_shows_its_warning_about_a_pose_beyond_the_limits(po
     assert re.search(r"warning: joint b is at -100\.0\d*, beyond its limits -90\.\.90: recorded at the limit", text), (
         "\n".join(screen)
     )
-    assert sum("teach: taught.json" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once
+    assert sum(f"teach: {taught}" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once
 
 
 @pytest.mark.parametrize("command", ["teach", "calibrate"])

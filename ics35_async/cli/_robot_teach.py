@@ -238,7 +238,7 @@ def teach(
                     return f"t=    - s (the first pose is at {times.lead:g} s)  {captured}"
                 return f"t={now:5.1f} s  {captured}"
 
-            title = TitleInParts(("teach:", escape(target.name)), frozenset({1}))
+            title = TitleInParts(("teach:", escape(out_file)), frozenset({1}))  # (the file as typed, its folder too)
 
             def table() -> Table:
                 return joint_table(robot, title.whole, names, lost=bool(lost))

@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+CHECKOUT = str(Path(__file__).resolve().parents[2])  # (the folder that holds the package under test)
+
 # (The other C0 control characters are matched alone and print nothing, as on a terminal: a Ctrl-C's raw echo, \x03,
 # once ECHOCTL is off.)
 _CONTROL = re.compile(
@@ -122,6 +124,7 @@ def typed_on_a_terminal(
     rows: int = 40,
     env: dict[str, str] | None = None,
     script: str | None = None,
+    cwd: Path | None = None,
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` (``python -c script ARGS`` with ``script``) with a pty as its controlling
     terminal (stdin, stdout and stderr), as
@@ -129,7 +132,8 @@ def typed_on_a_terminal(
     ``when`` seconds (an :class:`Unread`'s reading nothing), or until ``when()`` is true (e.g. a line in the
     ``stdout`` file), then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
     ``stdout``: a file for stdout instead (``ics35 ... > FILE``); ``columns`` and ``rows``: the terminal's width and
-    height; ``env``: more environment variables.  Returns the exit code and everything written to the terminal."""
+    height; ``env``: more environment variables; ``cwd``: the directory it runs in (the package still this
+    checkout's).  Returns the exit code and everything written to the terminal."""
     import fcntl
     import struct
     import subprocess
@@ -146,13 +150,18 @@ def typed_on_a_terminal(
         signal.signal(signal.SIGINT, signal.SIG_DFL)  # (as an interactive shell starts it)
 
     output = None if stdout is None else stdout.open("wb")
+    # (run elsewhere, `-m` would find the package installed, not this checkout's)
+    here = (
+        {} if cwd is None else {"PYTHONPATH": os.pathsep.join(filter(None, [CHECKOUT, os.environ.get("PYTHONPATH")]))}
+    )
     proc = subprocess.Popen(
         [sys.executable, *(["-m", "ics35_async.cli"] if script is None else ["-c", script]), *args],
         stdin=slave,
         stdout=slave if output is None else output,
         stderr=slave,
         preexec_fn=own_terminal,
-        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns), "LINES": str(rows), **(env or {})},
+        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns), "LINES": str(rows), **here, **(env or {})},
+        cwd=cwd,
     )
     os.close(slave)
     screen = TerminalOutput(master)
