@@ -16,9 +16,10 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
-from ics35_async.diagnose.system import check_system, holders, is_pseudo_terminal
+from ics35_async.diagnose.system import check_system, is_pseudo_terminal
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo
+from ics35_async.transports.port_holders import holders
 from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION
 
 UID, GID = 1000, 1000
@@ -738,6 +739,25 @@ def test_doctor_on_a_port_another_program_holds_says_so_once(cli: Any, pty_sim: 
         data = cli("--port", sim.path, "doctor", "--ids", "1", "--json")
         errors = [f for f in data.json()["findings"] if f["severity"] == "error"]
         assert data.code == ExitCode.PORT and [f["check"] for f in errors] == ["holder"], errors
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the holder is found in Linux's /proc")
+def test_a_command_on_a_port_another_program_holds_names_that_program(cli: Any, pty_sim: Any) -> None:
+    # "in use by another program (or already open in this one)", hint "close the other program (another ics35, a
+    # serial monitor, ModemManager)": which of them, doctor knew; the command did not say.
+    sim = pty_sim("--ids", "1", "--fast")
+    holding = "import serial, sys, time; port = serial.Serial(sys.argv[1], exclusive=True); time.sleep(60)"
+    holder = subprocess.Popen([sys.executable, "-c", holding, sim.path])
+    try:
+        wait_until_held(os.path.realpath(sim.path), holder.pid)
+        result = cli("--port", sim.path, "get", "1", "speed")
+        said = " ".join(result.err.split())
+        assert result.code == ExitCode.PORT and "in use by another program" in said, said
+        assert f"held open by python (process {holder.pid})" in said and f"kill {holder.pid}" in said, said
     finally:
         holder.kill()
         holder.wait()

@@ -6,9 +6,11 @@ import contextlib
 import os
 import sys
 from collections.abc import Awaitable, Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import errors
+from ..diagnose.system import check_holders
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
@@ -63,7 +65,11 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
         told = port_names_hint() in text or misnamed_port_hints(settings.port) or "ics35 sim" in text
         return CliError(ExitCode.PORT, text, *([] if told else [f"list ports with: {port_names_hint()}"]))
     if isinstance(exc, errors.PortBusy):
-        return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
+        # (the library's text names the program where it can; doctor's advice for it, as doctor gives it)
+        fixes = [f.fix for f in check_holders(Path("/"), settings.port, own_pid=os.getpid()) if f.fix]
+        return CliError(
+            ExitCode.PORT, text, *(fixes or ["close the other program (another ics35, a serial monitor, ModemManager)"])
+        )
     if isinstance(exc, errors.DirectionControlNotSupported):
         return CliError(
             ExitCode.PORT,

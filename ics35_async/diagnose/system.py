@@ -26,6 +26,7 @@ from ..transports.listing import (
     linux_adapter_steps,
 )
 from ..transports.platforms import is_pty_name, latency_timer_advice, port_names_hint
+from ..transports.port_holders import below, holders, processes
 from ..transports.wire_device import is_url
 from .findings import Finding
 from .udev import system_groups
@@ -84,11 +85,6 @@ class SystemReport:
         }
 
 
-def _below(root: Path, path: str) -> Path:
-    # (a relative path, a port named from where the command runs, is the working directory's, as every open takes it)
-    return root / os.path.abspath(path).lstrip("/")
-
-
 def is_pseudo_terminal(port: str | None, root: str | Path = "/") -> bool:
     """Whether ``port`` (a device path, or a link to one such as ``ics35 sim``'s) is a pty slave below ``root``:
     by its resolved name, without opening it."""
@@ -97,7 +93,7 @@ def is_pseudo_terminal(port: str | None, root: str | Path = "/") -> bool:
     path = Path(port)
     if not path.is_absolute():  # (a link in the working directory: ./sim-link)
         path = Path.cwd() / path
-    real = Path(os.path.realpath(_below(Path(root), str(path))))
+    real = Path(os.path.realpath(below(Path(root), str(path))))
     try:
         inside = real.relative_to(os.path.realpath(root))
     except ValueError:
@@ -118,47 +114,9 @@ def pseudo_terminal_finding(port: str) -> Finding:
 def read_latency_timer(root: Path, tty: str) -> int | None:
     """The FTDI latency timer (ms) of ``tty`` (``ttyUSB0``) from sysfs, or None where the system shows none."""
     try:
-        return int(_below(root, f"/sys/bus/usb-serial/devices/{tty}/latency_timer").read_text().strip())
+        return int(below(root, f"/sys/bus/usb-serial/devices/{tty}/latency_timer").read_text().strip())
     except (OSError, ValueError):
         return None
-
-
-def processes(root: Path) -> list[tuple[int, str]]:
-    """``(pid, name)`` of the processes ``root/proc`` lists."""
-    found = []
-    try:
-        entries = list(_below(root, "/proc").iterdir())
-    except OSError:
-        return []
-    for entry in entries:
-        if not entry.name.isdigit():
-            continue
-        try:
-            found.append((int(entry.name), (entry / "comm").read_text().strip()))
-        except OSError:
-            continue
-    return sorted(found)
-
-
-def holders(root: Path, device: str, *, own_pid: int | None = None) -> list[tuple[int, str]]:
-    """The processes with ``device`` open (from their ``/proc/PID/fd`` links; only those we may read)."""
-    targets = {device, os.path.realpath(device)}
-    held = []
-    for pid, name in processes(root):
-        if pid == own_pid:
-            continue
-        try:
-            fds = list(_below(root, f"/proc/{pid}/fd").iterdir())
-        except OSError:
-            continue
-        for fd in fds:
-            try:
-                if os.readlink(fd) in targets:
-                    held.append((pid, name))
-                    break
-            except OSError:
-                continue
-    return held
 
 
 def _may_open(st: os.stat_result, uid: int, gids: set[int]) -> bool:
@@ -181,7 +139,7 @@ def _user_name() -> str:
 
 def check_port_access(root: Path, port: str, *, uid: int, gids: set[int]) -> list[Finding]:
     """Whether the port exists, and whether this user may open it (with the group to join if not)."""
-    node = _below(root, port)
+    node = below(root, port)
     try:
         st = node.stat()
     except FileNotFoundError:
@@ -190,7 +148,7 @@ def check_port_access(root: Path, port: str, *, uid: int, gids: set[int]) -> lis
         return [Finding("port", "error", f"{port} cannot be examined: {exc.strerror}")]
     if _may_open(st, uid, gids):
         return []
-    groups = system_groups(_below(root, "/etc/group"))
+    groups = system_groups(below(root, "/etc/group"))
     name = next((n for n, (gid, _) in groups.items() if gid == st.st_gid), str(st.st_gid))
     members = groups.get(name, (0, ()))[1]
     user = _user_name()
@@ -278,7 +236,7 @@ CONSOLE_FIX = (
 def _on_usb(root: Path, tty: str) -> bool:
     """Whether ``tty`` is a USB device's (or not known to be otherwise): False for a UART on the board's bus."""
     try:
-        bus = os.path.basename(os.readlink(_below(root, f"/sys/class/tty/{tty}/device/subsystem")))
+        bus = os.path.basename(os.readlink(below(root, f"/sys/class/tty/{tty}/device/subsystem")))
     except OSError:
         return True
     return bus in ("usb", "usb-serial")
@@ -288,17 +246,17 @@ def check_board_uart(root: Path, device: str, tty: str) -> list[Finding]:
     """An error for a board's own UART that cannot carry the line: a Raspberry Pi's mini UART (no parity), or
     one the kernel writes its console to (its messages would go out onto the servos' line as bytes)."""
     found = []
-    if tty_driver(tty, sysfs_root=_below(root, "/sys")) == MINI_UART_DRIVER:
+    if tty_driver(tty, sysfs_root=below(root, "/sys")) == MINI_UART_DRIVER:
         found.append(Finding("uart", "error", MINI_UART_PROBLEM.format(port=device), MINI_UART_FIX))
     try:
-        words = _below(root, "/proc/cmdline").read_text().split()
+        words = below(root, "/proc/cmdline").read_text().split()
     except OSError:
         words = []
     for word in words:
         if not word.startswith("console="):
             continue
         name = word.removeprefix("console=").split(",")[0]
-        named = os.path.basename(os.path.realpath(_below(root, f"/dev/{name}"))) if name else ""
+        named = os.path.basename(os.path.realpath(below(root, f"/dev/{name}"))) if name else ""
         if tty in (name, named):
             found.append(
                 Finding(
@@ -324,7 +282,7 @@ def check_grabbers(root: Path) -> list[Finding]:
 
 def is_wsl(root: Path) -> bool:
     try:
-        version = _below(root, "/proc/version").read_text().lower()
+        version = below(root, "/proc/version").read_text().lower()
     except OSError:
         return False
     return "microsoft" in version or "wsl" in version
@@ -398,7 +356,7 @@ def check_system(
     report = SystemReport(ports=list(ports))
     device = port if port and not is_url(port) and not port.upper().startswith("COM") else None
     if linux:
-        report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
+        report.kondo_without_port = kondo_usb_without_port(below(root, "/sys"))
     if device is not None and is_pseudo_terminal(device, root):
         # (a simulator's or a bridge's pty: who may open it and who holds it still matter, adapters do not)
         report.pseudo_terminal = True
@@ -411,7 +369,7 @@ def check_system(
             report.findings += check_holders(root, device, own_pid=own_pid)
         return report
     # (A port on a board's own UART or a PC's serial port needs no USB adapter: none missing is no news.)
-    on_usb = device is None or not linux or _on_usb(root, os.path.basename(os.path.realpath(_below(root, device))))
+    on_usb = device is None or not linux or _on_usb(root, os.path.basename(os.path.realpath(below(root, device))))
     report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux, usb_port=on_usb)
     if linux and is_wsl(root) and not any(p.usb_id for p in ports):
         report.findings.append(
@@ -424,7 +382,7 @@ def check_system(
         gids = set(os.getgroups()) | {os.getegid()} if gids is None else gids
         report.findings += check_port_access(root, device, uid=uid, gids=gids)
         report.findings += check_holders(root, device, own_pid=own_pid)
-        tty = os.path.basename(os.path.realpath(_below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
+        tty = os.path.basename(os.path.realpath(below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
         report.latency_timer_ms = read_latency_timer(root, tty)
         listed = [p.kondo for p in ports if os.path.basename(p.device) == tty]
         report.device, report.tty, report.kondo_adapter = device, tty, listed[0] if listed else None

@@ -33,6 +33,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, check_link_url, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
+from .port_holders import held_by
 from .sim_link_lock import PTY_DIRS, left_by_a_stopped_simulator
 from .wire_device import is_url, url_scheme
 
@@ -149,6 +150,9 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
     if code in (errno.EACCES, errno.EPERM):
         return PortPermissionDenied(code, f"permission denied opening {port!r}: {permission_hint()}")
     if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
+        holder = held_by(port)
+        if holder is not None:  # (Linux: the program to close is named)
+            return PortBusy(code, f"{port!r} is in use by another program: held open by {holder}")
         return PortBusy(code, f"{port!r} is in use by another program (or already open in this one)")
     if winerror in _WINERROR_GONE or code in (errno.ENXIO, errno.ENODEV):
         return SerialPortError(code or errno.ENXIO, f"{port!r} exists but no device answers behind it (unplugged?)")
