@@ -222,6 +222,15 @@ def test_restore_to_its_own_servo_at_another_rate_says_the_rate_not_another_serv
     assert "another servo" not in said, said
 
 
+def test_a_servo_that_did_not_go_free_is_said_in_words_not_the_librarys_record(cli: Any) -> None:
+    # "servo 5: no answer (free to ID 5: no reply (check ID, baud rate, power) (raw: 85 00 00))": the library's
+    # record of the transaction, its command's name and bytes, where a person reads why (the bytes are in -v's log).
+    result = cli("--port", "sim://?ids=1", "free", "1,5")
+    said = result.out + result.err
+    assert result.code == ExitCode.NO_REPLY, said
+    assert "servo 5: no answer\n" in said and "raw:" not in said and "free to ID" not in said, said
+
+
 def test_read_pose_has_no_float_noise_and_no_negative_zero(tmp_path: Path) -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], name="frictions-pose")
     robot_file = tmp_path / "robot.toml"

@@ -258,8 +258,12 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         for i, e in report.failed.items():
             # Only silence is "no answer": a garbled reply means something at that ID did answer (two servos
             # sharing it, most often), which the supply and wiring hints below would not mend.
-            what = "no answer" if isinstance(e, ReplyTimeout) else "garbled reply" if _garbled(e) else "failed"
-            say(f"[red]servo {i}: {what}[/red] ({escape(str(e))})")
+            # (why in words: the library's record of the transaction, its bytes, is in -v's log)
+            if isinstance(e, ReplyTimeout):
+                say(f"[red]servo {i}: no answer[/red]")
+            else:
+                what = "garbled reply" if _garbled(e) else "failed"
+                say(f"[red]servo {i}: {what}[/red] ({escape(e.reason)})")
         if report.unknown and every_servo:  # (most of them empty IDs: one line)
             say(
                 f"ID(s) {id_ranges(report.unknown)}: [bold]unknown[/bold]: the line was lost before they answered "

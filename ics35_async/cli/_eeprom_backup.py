@@ -124,7 +124,7 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
             try:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
-                say_labelled("[yellow]warning:[/yellow]", f"servo {i}: EEPROM read failed: {escape(str(exc))}")
+                say_labelled("[yellow]warning:[/yellow]", f"servo {i}: EEPROM read failed: {escape(exc.reason)}")
                 failed[i] = read_failed_why(exc, settings.baud, echo=settings.echo)
             except (PortLost, ClosedByPortLoss) as exc:
                 if not images:

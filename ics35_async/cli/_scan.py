@@ -170,7 +170,7 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
                 "[yellow]warning:[/yellow]",
                 f"servo {s.servo_id}: its EEPROM could not be read (after retries), so its "
                 f"rate is unconfirmed: it answered at {heard} baud; read it again with: {escape(again)}  "
-                f"(last error: {escape(str(s.eeprom_error))})",
+                f"(last error: {escape(s.eeprom_error.reason)})",
             )
     if report.garbled and report.echo_evidence is None:
         where = ", ".join(f"ID {i} at {baud}" for baud, i, _ in report.garbled)
