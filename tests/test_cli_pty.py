@@ -1708,7 +1708,7 @@ def test_ctrl_c_during_a_scan_names_the_servos_it_had_found(tmp_path: Path, json
     flat = " ".join(said.split())  # (wrapped at words)
     error = flat[flat.index("error: interrupted") :]
     assert "servo(s) 1, 3" in error, said
-    assert error.endswith("scan --bauds 115200"), said  # (the rate they answered at: their settings in a second)
+    assert error.endswith("scan --ids 1,3 --bauds 115200"), said  # (where they answered: their settings at once)
     if json_output:
         report = json.loads(out.read_text())
         assert report["interrupted"] is True, report

@@ -41,7 +41,7 @@ from ._common import (
     translate,
     yes_option,
 )
-from ._console import print_heading, printed_table, say, say_labelled, scan_progress
+from ._console import ids_argument, print_heading, printed_table, say, say_labelled, scan_progress
 from ._eeprom_view import baud_text, flags_text
 from ._errors import answered_at_another_id
 
@@ -311,7 +311,7 @@ def scan(
 def _interrupted_scan(settings: Settings, found: dict[int, list[int]], *, as_json: bool) -> CliError:
     """Ctrl-C part-way through a scan: the servos that had answered are said (at the rates they answered at; their
     EEPROMs not read, so a line that ignores rates shows one servo at each), with the command that lists them with
-    their settings, at those rates only."""
+    their settings, of those IDs at those rates only (seconds, not the scan cut short)."""
     if as_json:
         emit_json(
             {
@@ -325,7 +325,7 @@ def _interrupted_scan(settings: Settings, found: dict[int, list[int]], *, as_jso
             say(f"servo(s) {ids_text(sorted(at))} answered at {baud} baud", to=out)
     every = sorted({i for at in found.values() for i in at})
     shown = "listed" if as_json else "shown above"
-    again = settings.command_line("scan", "--bauds", ",".join(map(str, found)))
+    again = settings.command_line("scan", "--ids", ids_argument(every), "--bauds", ",".join(map(str, found)))
     return CliError(
         ExitCode.INTERRUPTED,
         f"interrupted before the scan ended: servo(s) {ids_text(every)} had answered ({shown})",
