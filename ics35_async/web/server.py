@@ -199,6 +199,8 @@ class _Answering:
 
     A request cut short before its answer began is answered 503 with the reason (:data:`STOPPING_REASON`): the
     person stopped the server, which is no fault of its own (uvicorn would answer 500 and log the cancellation).
+    A change cut short (any method but a read's) says it may be done in part (:data:`CUT_SHORT_REASON`): it was
+    under way, and Many servos' Apply had written some servos when "the server is stopping" read as a refusal.
     """
 
     def __init__(self, app: Any) -> None:
@@ -223,27 +225,31 @@ class _Answering:
         except asyncio.CancelledError:
             if not self.cutting_short or answer_begun:
                 raise  # (an answer under way can only be broken off: uvicorn closes its connection)
-            await _stopping_answer(send)
+            await _stopping_answer(send, STOPPING_REASON if scope["method"] in ("GET", "HEAD") else CUT_SHORT_REASON)
         finally:
             self.requests -= 1
 
 
 STOPPING_REASON = b"the server is stopping"
+CUT_SHORT_REASON = (
+    b"the server stopped while doing this: it may be done in part (some servos written, or a write not read back): "
+    b"read the servos again once the server is back"
+)
 
 
-async def _stopping_answer(send: Any) -> None:
+async def _stopping_answer(send: Any, reason: bytes) -> None:
     await send(
         {
             "type": "http.response.start",
             "status": 503,
             "headers": [
                 (b"content-type", b"text/plain; charset=utf-8"),
-                (b"content-length", str(len(STOPPING_REASON)).encode()),
+                (b"content-length", str(len(reason)).encode()),
                 (b"connection", b"close"),
             ],
         }
     )
-    await send({"type": "http.response.body", "body": STOPPING_REASON})
+    await send({"type": "http.response.body", "body": reason})
 
 
 # How long a stop waits before it says what it waits for (a stop that ends sooner says nothing).
