@@ -24,7 +24,7 @@ from starlette.websockets import WebSocketDisconnect
 from ics35_async import Eeprom
 from ics35_async.errors import ReplyHeaderError, ReplyTimeout
 from ics35_async.policies.eeprom_backup import backups_in
-from ics35_async.protocol import ReadEeprom, ReadParam, WriteEeprom
+from ics35_async.protocol import ReadEeprom, ReadParam, WriteEeprom, WriteId
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
@@ -529,6 +529,24 @@ def test_renumbering_a_servo_at_another_rate_names_that_rate_and_leaves_the_line
     post(client, "/api/connect", {"baud": 625000})
     assert post(client, "/api/id/write", {"new_id": 9}).json()["written"]
     assert [s.servo_id for s in sim.servos] == [9]
+
+
+@pytest.mark.parametrize("pulled_at", [ReadParam, WriteId], ids=["survey", "id-write"])
+def test_a_renumbering_whose_port_is_lost_says_whether_the_id_write_went_out(serve: Any, pulled_at: type) -> None:
+    # The adapter pulled out as the lone servo was renumbered: the page said the port's words alone, and after the
+    # replug nothing said whether the servo had its old ID or the new one (`ics35 set-id` says it).
+    client, sim = serve(())
+    puller = UnplugsWhenAsked(4, pulled_at)
+    sim.add_device(puller)
+    puller.line = sim
+    lost = post(client, "/api/id/write", {"new_id": 9})
+    assert lost.status_code == 503 and lost.json()["kind"] == "PortLost", lost.json()
+    words = lost.json()["error"]
+    if pulled_at is ReadParam:
+        assert words.endswith("before the ID write: nothing was written"), words
+    else:  # (the servo took it: it answers as ID 9 once back)
+        assert "while the ID write was on its way: the servo answers as ID 4 or as ID 9 now" in words, words
+        assert "press Who is on the line?" in words, words
 
 
 def test_a_renumbering_refused_says_what_to_do(serve: Any) -> None:

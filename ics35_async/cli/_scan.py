@@ -427,14 +427,14 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
         if not (interrupted or port_lost) or (interrupted and asking and sent_from is None):
             raise
         how = "interrupted" if interrupted else f"{exc.message}:"
+        words = policies.cut_short_words(sent_from, new_id)
         if sent_from is None:
-            raise CliError(exc.code, f"{how} before the ID write: nothing was written", *exc.hints) from None
+            raise CliError(exc.code, f"{how} {words}", *exc.hints) from None
         # Cut short as the ID command went out, or before the new ID was seen to answer: the servo took it or not.
-        was = sent_from
-        ids = f"{was},{new_id}"
+        ids = f"{sent_from},{new_id}"
         raise CliError(
             exc.code,
-            f"{how} while the ID write was on its way: the servo answers as ID {was} or as ID {new_id} now",
+            f"{how} {words}",
             f"see which with: {settings.command_line('scan', '--ids', ids, '--bauds', str(settings.baud), '--quick')}",
         ) from None
     if as_json:

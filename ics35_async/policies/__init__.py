@@ -33,7 +33,15 @@ from .failure_kinds import (
 )
 from .free import FreeReport, free_servos
 from .held_check import HELD_SLACK_DEGREES, off_its_way
-from .id_write import IdChange, IdSurvey, Refusal, look_elsewhere, survey_for_id_write, write_lone_id
+from .id_write import (
+    IdChange,
+    IdSurvey,
+    Refusal,
+    cut_short_words,
+    look_elsewhere,
+    survey_for_id_write,
+    write_lone_id,
+)
 from .no_reply import NoReply, NoReplyCause, why_no_reply
 from .position_read import (
     NO_READ_ICS35,
@@ -98,6 +106,7 @@ __all__ = [
     "HELD_SLACK_DEGREES",
     "off_its_way",
     "look_elsewhere",
+    "cut_short_words",
     "nothing_came_back",
     "plan_eeprom_write",
     "plan_position_stream",

@@ -167,6 +167,15 @@ async def look_elsewhere(
     return dataclasses.replace(survey, elsewhere=search.found)
 
 
+def cut_short_words(sent_from: int | None, new_id: int) -> str:
+    """What a renumbering to ``new_id`` cut short (Ctrl-C, a lost port) leaves, in words, from ``on_sent`` of
+    :func:`write_lone_id`: ``sent_from``, the ID the servo had as the ID command went out (None: it had not gone
+    out).  After it the servo took the new ID or did not: only asking tells which."""
+    if sent_from is None:
+        return "before the ID write: nothing was written"
+    return f"while the ID write was on its way: the servo answers as ID {sent_from} or as ID {new_id} now"
+
+
 async def write_lone_id(
     line: Line, new_id: int, *, survey: IdSurvey | None = None, on_sent: Callable[[], None] | None = None
 ) -> IdChange:

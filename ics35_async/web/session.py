@@ -55,6 +55,7 @@ from ..policies import (
     ScanReport,
     ServoWriteReport,
     WriteOutcome,
+    cut_short_words,
     look_elsewhere,
     off_its_way,
     plan_eeprom_write,
@@ -1248,8 +1249,21 @@ class LineSession:
         async with self.exclusive:
             bus = await self._line_at_its_rate()
             self._looked = {}  # a servo moved to another ID: look for silent ones anew
-            survey = await self._survey_for_id_write(bus)
-            change = await write_lone_id(bus, new_id, survey=survey)
+            sent_from: list[int | None] = [None]  # the ID the servo had as the ID command went out
+
+            def sent() -> None:
+                sent_from[0] = survey.lone_id
+
+            try:
+                survey = await self._survey_for_id_write(bus)
+                change = await write_lone_id(bus, new_id, survey=survey, on_sent=sent)
+            except (PortLost, BusClosed) as exc:
+                # As `ics35 set-id` says it: whether the write went out, and (if it did) how to learn where it left
+                # the servo; the port's own words first.
+                after = (
+                    "" if sent_from[0] is None else "; once the line is back, press Who is on the line? to see which"
+                )
+                raise PortLost(f"{error_text(exc)} {cut_short_words(sent_from[0], new_id)}{after}") from exc
         if change.written and change.old_id in self._limits:
             self._limits[new_id] = self._limits.pop(change.old_id)
         if change.written:
