@@ -371,6 +371,42 @@ def test_a_write_whose_read_after_fails_still_shows_its_outcome(browser: Browser
         assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
 
 
+@pytest.mark.parametrize("how", ["write", "restore"])
+def test_a_verified_write_whose_read_after_met_a_lost_port_is_not_told_to_try_again(
+    browser: Browser, tmp_path: Path, how: str
+) -> None:
+    # The adapter pulled out just after a write was verified, as the page read the servo again: once the line was
+    # back the page said "the line is back: try again", which invited a second write of one already done.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        if how == "write":
+            p.fill("#eeprom-table [name=speed]", "90")
+            p.click("#plan-btn")
+            button, result = "#write-btn", "#write-result"
+        else:
+            backup = backed_up(p, tmp_path)
+            line.sim.servo(1).eeprom = line.sim.servo(1).eeprom.replace(speed=33)
+            p.set_input_files("#restore-file", str(backup))
+            button, result = "#restore-btn", "#restore-result"
+        expect(p.locator(button)).to_be_enabled()
+
+        def unplugged_first(route: Any) -> None:  # (the server's read then meets the lost port itself)
+            line.sim.unplug()
+            route.continue_()
+
+        p.route("**/api/servo/1/eeprom", unplugged_first)
+        p.click(button)
+        expect(p.locator(result)).to_contain_text("written and verified by reading it back")
+        expect(p.locator("#lost-banner")).to_be_visible()
+        p.unroute("**/api/servo/1/eeprom")
+        line.sim.replug()
+        expect(p.locator("#message")).to_contain_text("the line is back")
+        expect(p.locator("#message")).not_to_contain_text("try again")
+        expect(p.locator("#message")).to_contain_text("was verified")
+        assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
+
+
 def test_an_eeprom_write_whose_port_was_lost_as_it_went_says_it_may_have_reached_the_servo(browser: Browser) -> None:
     # The port went as the servo heard the write (it took it): the page said only "port lost", then, the line back
     # and Write pressed again, "EEPROM changed since the diff": nothing told whether the write had reached it.

@@ -597,6 +597,20 @@ function motionOffAfter(wasOn) {
   return wasOn ? "; motion is off now (it was read again): switch it on to jog, which holds it where it stands" : "";
 }
 
+// The servo read again after a write or restore: where that read meets a lost port, what to do once the line is
+// back is to read it, not "try again" (which invited a second write of one already done).
+async function readAfterWrite(id, result) {
+  try {
+    await loadServo();
+  } catch (e) {
+    if (state.sayingLost) {
+      const done = result.written ? (result.verified ? "the write was verified" : "the write's read-back differed") : "nothing was written";
+      state.backThen = `${done} before the port went: press Read to show servo ${id} again`;
+    }
+    throw e;
+  }
+}
+
 async function writeEeprom() {
   const id = servoId(), typed = typedEdits();
   const request = { changes: editedFields(), ...allowances(), before: state.plan.before };
@@ -615,7 +629,7 @@ async function writeEeprom() {
   const wasOn = $("#motion-switch").checked;
   // The outcome is shown whatever the read after it meets (the server stopped, the servo unplugged): hidden
   // behind that read's error, a verified write left the person guessing what the servo holds.
-  try { await loadServo(); } finally { $("#write-result").replaceChildren(resultText(result)); }
+  try { await readAfterWrite(servoId(), result); } finally { $("#write-result").replaceChildren(resultText(result)); }
   say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}${motionOffAfter(wasOn)}`,
     result.verified || !result.written ? "info" : "error");
 }
@@ -672,7 +686,7 @@ async function restoreServo() {
   $("#restore-btn").disabled = true;
   followNewId(result);  // "also its ID": the servo answers at the backup's
   const wasOn = $("#motion-switch").checked;
-  try { await loadServo(); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
+  try { await readAfterWrite(servoId(), result); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
   if (wasOn) say(`servo ${servoId()}${motionOffAfter(wasOn)}`, "info");
 }
 
