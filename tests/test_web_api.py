@@ -653,6 +653,15 @@ def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(3).eeprom.speed == 40
 
 
+def test_a_profile_value_out_of_range_is_refused_once_before_any_servo_is_asked(serve: Any) -> None:
+    # speed 0 for six servos: each was read, then failed the same way, the page listing six failures of one typo.
+    client, sim = serve((1, 3))
+    before = sim.transactions
+    refused = post(client, "/api/many/apply", {"ids": [1, 3, 5], "changes": {"speed": 0}})
+    assert refused.status_code == 400 and refused.json()["error"] == "speed must be in 1..127, got 0", refused.json()
+    assert sim.transactions == before  # (nothing asked of any servo)
+
+
 def test_many_servos_say_no_reply_in_words_the_same_for_each_so_the_page_can_group_them(serve: Any) -> None:
     # An absent ID was told with the library's raw bytes ("read_eeprom to ID 5: ... (raw: a5 00)"), each
     # servo's words naming it, so the page listed the same news once per servo.

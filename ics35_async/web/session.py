@@ -55,6 +55,7 @@ from ..policies import (
     ScanReport,
     ServoWriteReport,
     WriteOutcome,
+    check_changes,
     cut_short_words,
     look_elsewhere,
     off_its_way,
@@ -926,8 +927,11 @@ class LineSession:
         per servo); a lost line ends the run, the servos after it ``not_tried`` (a port back half-way would
         have written some of them and not the others)."""
         checked = [protocol.check_id(i) for i in ids]
-        self.line()  # (no line open: said once, not "lost at servo 1" for the others)
         profile = {k: v for k, v in edit.items() if k in ("changes", "set_flags", "clear_flags")}
+        # A value out of range is the same for every servo: refused once, before any is asked (not once a servo).
+        changes, set_flags, clear_flags, keep = edit_of(profile)
+        check_changes(changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep)
+        self.line()  # (no line open: said once, not "lost at servo 1" for the others)
         results: list[dict[str, Any]] = []
         for k, sid in enumerate(checked):
             report: ServoWriteReport | None = None  # (None: it failed before the write went out)
