@@ -407,6 +407,20 @@ def test_a_verified_write_whose_read_after_met_a_lost_port_is_not_told_to_try_ag
         assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
 
 
+def test_a_number_box_holding_what_is_no_number_is_said_so_not_empty(browser: Browser) -> None:
+    # "--5" typed in the speed box, on show there: the page said "give speed a value", as of an empty box.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        box = p.locator("#eeprom-table [name=speed]")
+        box.fill("")
+        box.press_sequentially("--5")
+        p.click("#plan-btn")
+        expect(p.locator("#message")).to_contain_text("speed: not a number")
+        expect(p.locator("#diff")).to_be_empty()
+        assert line.sim.servo(1).eeprom.speed == 127
+
+
 def test_an_eeprom_write_whose_port_was_lost_as_it_went_says_it_may_have_reached_the_servo(browser: Browser) -> None:
     # The port went as the servo heard the write (it took it): the page said only "port lost", then, the line back
     # and Write pressed again, "EEPROM changed since the diff": nothing told whether the write had reached it.

@@ -80,10 +80,17 @@ function el(tag, props = {}, ...children) {
 function numberIn(box, what) {
   const text = box.value.trim();
   if (text === "") {
-    say(`give ${what} a value`);
-    throw new Error(`give ${what} a value`);
+    const words = emptyWords(box, what);
+    say(words);
+    throw new Error(words);
   }
   return +text;
+}
+
+// Why a number box gives no value: empty, or holding what is no number ("--5", on show in the box, which the
+// browser gives as empty: "give it a value" of a box with something in it read as the page not seeing it).
+function emptyWords(box, what) {
+  return box.validity && box.validity.badInput ? `${what}: not a number (what its box holds)` : `give ${what} a value`;
 }
 
 // A box for a whole number (an ID, an EEPROM field, a RAM value): a fraction is refused here, in the page's words.
@@ -844,8 +851,8 @@ async function applyMany() {
   const changes = {};
   for (const name of PROFILE_FIELDS) {
     if (!document.querySelector(`[name=use-${name}]`).checked) continue;
-    const text = document.querySelector(`[name=value-${name}]`).value.trim();
-    if (text === "") { say(`give ${name} a value, or untick it`); return; }  // an empty box is not 0
+    const box = document.querySelector(`[name=value-${name}]`), text = box.value.trim();
+    if (text === "") { say(`${emptyWords(box, name)}, or untick it`); return; }  // an empty box is not 0
     changes[name] = +text;
   }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
