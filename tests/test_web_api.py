@@ -673,6 +673,8 @@ def test_many_servos_say_no_reply_in_words_the_same_for_each_so_the_page_can_gro
     words = silent[0]["error"]
     assert "no reply" in words and "raw" not in words and "a5" not in words and "5" not in words.split(), words
     assert "power" in words and "other baud rates" in words, words
+    # (words for several servos at once, "servos 5, 6: ... check its power": not of one)
+    assert " its " not in f" {words} ", words
 
 
 def test_many_servos_do_not_say_nothing_was_written_of_a_write_left_unanswered() -> None:

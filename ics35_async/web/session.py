@@ -970,8 +970,8 @@ class LineSession:
             if self.config.echo and not exc.raw:
                 return self._no_reply_words(NoReply(NoReplyCause.NO_ECHO, exc.servo_id, self.config.baud), None)
             return (
-                f"no reply at {self.config.baud:,} baud, nothing written: check its power (6-12 V on the servo "
-                "line, not just USB), the wiring and its ID; its Servo page looks for it at the other baud rates"
+                f"no reply at {self.config.baud:,} baud, nothing written: check the power (6-12 V on the servo "
+                "line, not just USB), the wiring and the ID; a servo's own page looks for it at the other baud rates"
             )
         what = exc.reason
         if exc.command == "write_eeprom":  # (garbled, but the write went out: the servo may have taken it)
