@@ -129,7 +129,10 @@ def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(brow
         expect(p.locator("#restore-diff")).to_contain_text("no change")
         (tmp_path / "notes.txt").write_text("not json")
         p.set_input_files("#restore-file", str(tmp_path / "notes.txt"))
-        expect(p.locator("#message")).to_contain_text("notes.txt: not JSON")
+        # (the browser's parser's words, "Unexpected token 'o', "not json" is not valid JSON", say nothing of backups)
+        expect(p.locator("#message")).to_have_text(
+            "notes.txt is no EEPROM backup: not JSON (a backup is the .json file Back up saves)"
+        )
         expect(p.locator("#restore-diff")).to_be_empty()
         expect(p.locator("#restore-btn")).to_be_disabled()
 

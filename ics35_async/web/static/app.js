@@ -668,7 +668,9 @@ async function planRestore() {
   $("#restore-result").replaceChildren(); $("#restore-diff").replaceChildren(); state.restore = null;
   if (!file) return;
   let doc;
-  try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
+  try { doc = JSON.parse(await file.text()); } catch (e) {
+    say(`${file.name} is no EEPROM backup: not JSON (a backup is the .json file Back up saves)`); return;
+  }
   const request = { doc, restore_id: $("#restore-id").checked, keep_baud: $("#restore-keep-baud").checked,
     allow_baud_change: $("#allow-baud-change").checked };
   let plan;
