@@ -621,6 +621,19 @@ def test_the_motion_count_moves_only_when_motion_changes_and_the_answer_to_a_swi
     assert post(client, "/api/servo/1/motion", {"enabled": False}).json()["motion_switches"] > on["motion_switches"]
 
 
+def test_a_scan_with_no_line_open_says_why_the_last_connect_failed() -> None:
+    # Scan with the port missing said "not connected: choose a port and press Connect", a port chosen, the reason
+    # only in the page's header.
+    app = create_app(LineSession(LineConfig(port="/dev/ttyUSB-nonexistent")), TOKEN)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        assert "no serial port at" in (client.get("/api/status").json()["error"] or "")
+        refused = post(client, "/api/scan")
+    words = refused.json()["error"]
+    assert refused.status_code >= 400 and words.startswith("not connected: no serial port at"), words
+    assert words.endswith("press Connect on the Line page") and words.count("press Connect") == 1, words
+
+
 def test_motion_a_page_switched_on_goes_off_when_its_socket_closes_and_a_page_not_connected_is_refused(
     serve: Any,
 ) -> None:

@@ -438,7 +438,10 @@ class LineSession:
 
     def line(self) -> Bus:
         if self.bus is None or not self.bus.is_open:
-            raise BusClosed("not connected: choose a port and press Connect on the Line page")
+            # (why the last Connect failed, where it did: a port was chosen, and "choose a port" alone hid it)
+            why = "" if self.error is None else f"{self.error}; "
+            then = "" if "press Connect" in why else "choose a port and press Connect on the Line page"
+            raise BusClosed(f"not connected: {why}{then}".removesuffix("; "))
         stopped = self._robot_stopped()
         if stopped is not None:
             raise BusClosed(f"not connected: {stopped}")
