@@ -410,6 +410,20 @@ def test_a_verified_write_whose_read_after_met_a_lost_port_is_not_told_to_try_ag
         assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
 
 
+def test_an_action_after_a_read_that_failed_says_that_servo_was_not_read(browser: Browser) -> None:
+    # Read of ID 9 (absent) after servo 1's page: every button then said "read a servo first", Read just pressed.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        p.fill("#servo-id", "9")
+        p.click("#servo-load")
+        expect(p.locator("#message")).to_contain_text("did not answer")
+        p.click("#plan-btn")
+        expect(p.locator("#message")).to_have_text(
+            "no servo is shown: the read of servo 9 failed; read a servo that answers first"
+        )
+
+
 def test_a_number_box_holding_what_is_no_number_is_said_so_not_empty(browser: Browser) -> None:
     # "--5" typed in the speed box, on show there: the page said "give speed a value", as of an empty box.
     line = PtyLine((1,))
@@ -772,7 +786,9 @@ def test_motion_is_not_switched_on_for_a_servo_whose_read_failed_until_it_is_rea
         expect(p.locator("#message")).to_contain_text("did not answer")
         line.sim.add_device(unplugged)
         p.click("#motion-switch")  # (not check(): the page unticks it at once)
-        expect(p.locator("#message")).to_have_text("read a servo first")
+        expect(p.locator("#message")).to_have_text(
+            "no servo is shown: the read of servo 1 failed; read a servo that answers first"
+        )
         expect(p.locator("#motion-switch")).not_to_be_checked()
         expect(p.locator("#jog-plus")).to_be_disabled()
         assert p.request.get(base + "api/status").json()["motion_on"] == []

@@ -352,8 +352,12 @@ async function scanLine() {
 function servoId() {
   const id = state.servoLoaded;
   if (id === null || id === undefined) {
-    say("read a servo first");
-    throw new Error("read a servo first");
+    // (just after a Read that failed, "read a servo first" read as if Read had not been pressed)
+    const failed = state.readFailed;
+    const words = failed === null || failed === undefined
+      ? "read a servo first" : `no servo is shown: the read of servo ${failed} failed; read a servo that answers first`;
+    say(words);
+    throw new Error(words);
   }
   return id;
 }
@@ -437,6 +441,16 @@ function typedEdits() {
 }
 
 async function loadServo(typed = {}) {
+  try {
+    await readServo(typed);
+  } catch (e) {
+    // The servo did not answer (or answered garbled): what an action on no servo shown then says.
+    if (e.status === 502 || e.status === 504) state.readFailed = $("#servo-id").value.trim();
+    throw e;
+  }
+}
+
+async function readServo(typed) {
   const id = wholeIn($("#servo-id"), "the servo's ID");
   // (its tables are another read's from here on; a read that fails keeps what was typed for the next of this servo)
   const kept = state.typedFor && state.typedFor.id === id && !Object.keys(typed).length ? state.typedFor.typed : typed;
@@ -446,6 +460,7 @@ async function loadServo(typed = {}) {
   // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
   const mine = (state.loads = (state.loads ?? 0) + 1);
   const overtaken = () => mine !== state.loads;
+  state.readFailed = null;
   await leaveServo();
   await motionOff(id);
   if (overtaken()) return;
