@@ -686,8 +686,13 @@ def test_back_up_all_saves_the_servos_found_in_one_file_that_a_servo_page_restor
         open_servo_page(p, 2)
         p.set_input_files("#restore-file", str(backup))
         expect(p.locator("#restore-diff tr.changed")).to_contain_text("20")
+        # (which backup of the three: said, as a one-servo file's note says whose it is)
+        expect(p.locator("#restore-diff")).to_contain_text(
+            "servos-01-03.json holds the backups of servos 1-3: servo 2's is restored"
+        )
         p.click("#restore-btn")
         expect(p.locator("#restore-result")).to_contain_text("verified")
+        expect(p.locator("#message")).to_have_text("servo 2: restored and verified")  # (as a write says it on top)
         assert sim.servo(2).eeprom.speed == 20 and sim.servo(1).eeprom_writes == sim.servo(3).eeprom_writes == 0
         # Servo 4's page: the file has none of it, and says which servos it holds (the file named, as it was chosen).
         open_servo_page(p, 4)

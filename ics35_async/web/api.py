@@ -240,7 +240,7 @@ async def restore_plan(request: Request, session: LineSession) -> Any:
     sid = servo_id(request)
     edit = restore_edit(session, sid, await body(request))
     _, view = await session.plan(sid, edit)
-    return {**view, "saved_id": edit["saved_id"]}
+    return {**view, "saved_id": edit["saved_id"], "file_holds": edit["file_holds"]}
 
 
 async def restore(request: Request, session: LineSession) -> Any:

@@ -81,6 +81,7 @@ from ..policies.eeprom_backup import (
 )
 from ..policies.scan import rates_in_words
 from ..protocol import Param
+from ..protocol.wire import id_ranges
 from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
 from .config import LineConfig, said_on_the_page
@@ -912,13 +913,16 @@ class LineSession:
         """The edit a backup asks for servo ``servo_id`` (policies.eeprom_backup's checks; from a file of several
         servos' backups, the one saved from ``servo_id``), for :meth:`plan` and :meth:`write`; ``keep_baud``: all
         but the backup's baud rate (the servo stays at the rate the line reaches it at)."""
-        backup = backups_in(doc).backup_for(servo_id)
+        backups = backups_in(doc)
+        backup = backups.backup_for(servo_id)
         changes = backup_changes(backup, restore_id=restore_id, keep_baud=keep_baud)
         # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.  The
         # backup's read-only flags are another moment's state: the servo keeps its own (the plan names them).
         return {
             "changes": changes.fields,
             "saved_id": changes.saved_id,
+            # (which of them: the page says, the IDs as ranges)
+            "file_holds": id_ranges(backups.servos) if backups.several else None,
             "allow_id_change": restore_id,
             "keep_read_only": True,
         }

@@ -698,7 +698,9 @@ async function planRestore() {
     throw e;
   }
   state.restore = { ...request, before: plan.before };
-  const note = plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
+  const note = plan.file_holds
+    ? el("p", {}, `${file.name} holds the backups of servos ${plan.file_holds}: servo ${servoId()}'s is restored`)
+    : plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
   const baud = plan.allowed_by === "allow_baud_change"
     ? el("p", {}, "to restore the rest and keep the servo at its rate, tick “keep its baud rate”") : "";
   $("#restore-diff").replaceChildren(note, diffTable(plan), baud);
@@ -708,10 +710,12 @@ async function planRestore() {
 async function restoreServo() {
   const result = await api(`/api/servo/${servoId()}/restore`, state.restore);
   $("#restore-btn").disabled = true;
-  followNewId(result);  // "also its ID": the servo answers at the backup's
+  const who = followNewId(result);  // "also its ID": the servo answers at the backup's
   const wasOn = $("#motion-switch").checked;
   try { await readAfterWrite(servoId(), result); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
-  if (wasOn) say(`servo ${servoId()}${motionOffAfter(wasOn)}`, "info");
+  // (on top too, as a write's: beside the button alone, below the diff, it went unseen)
+  say(`${who}: ${result.written ? (result.verified ? "restored and verified" : "read-back differs") : "nothing to restore"}${motionOffAfter(wasOn)}`,
+    result.verified || !result.written ? "info" : "error");
 }
 
 async function writeRam() {
