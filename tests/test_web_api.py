@@ -666,6 +666,17 @@ def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(3).eeprom.speed == 40
 
 
+def test_the_last_many_servos_apply_is_kept_for_a_page_that_reloaded(serve: Any) -> None:
+    # A reload during Apply lost its outcome: the servos were written, and nothing on the page said so.
+    client, sim = serve((1, 3))
+    assert client.get("/api/many/last").json() == {"last": None}
+    post(client, "/api/many/apply", {"ids": [1, 3, 5], "changes": {"speed": 40}})
+    last = client.get("/api/many/last").json()["last"]
+    assert last["ids"] == [1, 3, 5] and last["running"] is False, last
+    assert [r["id"] for r in last["results"]] == [1, 3, 5] and last["results"][0]["verified"], last
+    assert sim.servo(1).eeprom.speed == 40
+
+
 def test_a_profile_value_out_of_range_is_refused_once_before_any_servo_is_asked(serve: Any) -> None:
     # speed 0 for six servos: each was read, then failed the same way, the page listing six failures of one typo.
     client, sim = serve((1, 3))

@@ -619,6 +619,20 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
         assert line.sim.servo(1).eeprom.punch == 3
 
 
+def test_the_many_servos_page_shows_the_last_applys_outcome_after_a_reload(browser: Browser) -> None:
+    # The page reloaded as Apply ran: the servos were written, the page said nothing of it.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        apply_punch_to_many(p, "1,5", 3)
+        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("verified")
+        p.reload()
+        p.goto(p.url.split("#")[0] + "#many")
+        expect(p.locator("#many-last")).to_have_text("the last Apply (servos 1, 5), from this page or another:")
+        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("written, verified")
+        expect(p.locator("#many-errors li")).to_have_count(1)
+        assert line.sim.servo(1).eeprom.punch == 3
+
+
 def test_the_many_servos_page_says_a_write_taken_but_not_read_back_is_written_not_verified(browser: Browser) -> None:
     # Servo 2's cable pulled as it acknowledged the write: its row said "failed" of a servo that took it.
     line = PtyLine((1,))

@@ -301,6 +301,10 @@ async def many_apply(request: Request, session: LineSession) -> Any:
     return {"results": await session.apply_to_many(ids, data)}
 
 
+async def many_last(request: Request, session: LineSession) -> Any:
+    return {"last": session.many_last}
+
+
 async def many_backup(request: Request, session: LineSession) -> Any:
     ids = (await body(request)).get("ids")
     if not isinstance(ids, list) or not ids:
@@ -534,6 +538,7 @@ ROUTES = [
     Route("/api/id/write", endpoint(id_write), methods=["POST"]),
     Route("/api/many/apply", endpoint(many_apply), methods=["POST"]),
     Route("/api/many/backup", endpoint(many_backup), methods=["POST"]),
+    Route("/api/many/last", endpoint(many_last)),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),

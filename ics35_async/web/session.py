@@ -188,6 +188,9 @@ class LineSession:
         self.config = config
         self.bus: Bus | None = None
         self.error: str | None = None  # why the last connect failed
+        # Many servos' last Apply (its IDs, running or its outcome): a page reloaded while it ran, or another tab,
+        # shows what it did (the servos were written whether a page heard the answer or not)
+        self.many_last: dict[str, Any] | None = None
         self.found: list[FoundServo] = []
         self.progress = ScanProgress()
         self.searching: str | None = None  # the rate a search of the other rates tries now, in words (its on_rate)
@@ -940,6 +943,16 @@ class LineSession:
         check_changes(changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep)
         self.line()  # (no line open: said once, not "lost at servo 1" for the others)
         results: list[dict[str, Any]] = []
+        self.many_last = {"ids": checked, "running": True, "results": results}
+        try:
+            return await self._apply_each(checked, profile, results)
+        finally:
+            self.many_last = {"ids": checked, "running": False, "results": results}
+
+    async def _apply_each(
+        self, checked: list[int], profile: Mapping[str, Any], results: list[dict[str, Any]]
+    ) -> list[dict[str, Any]]:
+        """:meth:`apply_to_many`'s writes, each servo's outcome added to ``results`` as it comes."""
         for k, sid in enumerate(checked):
             report: ServoWriteReport | None = None  # (None: it failed before the write went out)
             try:

@@ -126,7 +126,7 @@ function show() {
   if (page === "servo" && shownStill(arg)) backToServo();
   else if (page === "servo" && arg === undefined && typedStill()) backToTyped();
   else if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
-  if (page === "many") fillManyFields();
+  if (page === "many") { fillManyFields(); showManyLast().catch(() => {}); }
   showSimBanner();
   socketSend();
 }
@@ -866,7 +866,7 @@ function fillManyFields() {
 
 async function applyMany() {
   // An earlier Apply's outcome goes first: it stood under this one's refusal as if this one had failed so.
-  $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren();
+  $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren(); $("#many-last").textContent = "";
   let ids;
   try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
   const changes = {};
@@ -878,9 +878,30 @@ async function applyMany() {
   }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
   const reply = await api("/api/many/apply", { ids, changes });
+  $("#many-last").textContent = "";  // (a wait for "an Apply running" shown meanwhile was this one's)
+  showManyResults(reply.results);
+}
+
+// The server's last Apply, shown on a page that has none of its own on show (reloaded while it ran, or another
+// tab's): the servos were written whether a page heard the answer or not.  One still running is waited for.
+async function showManyLast() {
+  if ($("#many-results tbody").children.length) return;
+  const { last } = await api("/api/many/last");
+  if (!last || $("#many-results tbody").children.length || $("#page-many").hidden) return;
+  const servos = servosNamed(last.ids);
+  if (last.running) {
+    $("#many-last").textContent = `an Apply to ${servos} is running, from this page or another: its outcome shows here when it ends`;
+    setTimeout(() => showManyLast().catch(() => {}), 500);
+    return;
+  }
+  $("#many-last").textContent = `the last Apply (${servos}), from this page or another:`;
+  showManyResults(last.results);
+}
+
+function showManyResults(results) {
   // The same words for several servos (a lost port, a line of absent IDs) said once, naming them all.
   const failed = new Map();
-  for (const r of reply.results) if (r.error) failed.set(r.error, [...(failed.get(r.error) || []), r.id]);
+  for (const r of results) if (r.error) failed.set(r.error, [...(failed.get(r.error) || []), r.id]);
   $("#many-errors").replaceChildren(...[...failed].map(([words, who]) =>
     el("li", {}, `${servosNamed(who)}: ${words}`)));
   // (a write the servo took whose read-back failed is no "failed": it holds the new values, or part of them; nor is
@@ -889,7 +910,7 @@ async function applyMany() {
   const outcome = (r) => r.error ? (r.not_tried ? "not tried" : r.written ? "written, not verified"
     : r.maybe_written ? `may be written${cutShort(r)}: read it` : "failed (see above)")
     : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so";
-  $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
+  $("#many-results tbody").replaceChildren(...results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
     el("td", { class: r.error ? "bad" : "good", title: r.error || "" }, outcome(r)),
     el("td", {}, r.diff ? r.diff.map((d) => `${d.name} ${d.now}→${d.new}`).join(", ") : ""))));
 }
