@@ -80,9 +80,9 @@ def parse_assignment(text: str, edit: Edit) -> None:
         raise InvalidArgument(f"{text!r} is not field=value")
     if name not in EEPROM_FIELDS:
         close = closest_name(name, [*EEPROM_FIELDS, *FIELD_ALIASES])
-        if close is not None:
-            raise InvalidArgument(f"unknown EEPROM field {name!r}: did you mean {FIELD_ALIASES.get(close, close)}?")
-        raise InvalidArgument(f"unknown EEPROM field {name!r}; fields: {', '.join(EEPROM_FIELDS)}")
+        # (the list too: the closest of two near names, pulse_limit_low for pulse_limit, may not be the one meant)
+        meant = "" if close is None else f": did you mean {FIELD_ALIASES.get(close, close)}?"
+        raise InvalidArgument(f"unknown EEPROM field {name!r}{meant} (fields: {', '.join(EEPROM_FIELDS)})")
     if op and name != "flags":
         raise InvalidArgument(f"only flags takes {op}= (flags+=NAME sets a flag, flags-=NAME clears one)")
     if name == "flags":

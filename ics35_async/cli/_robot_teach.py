@@ -22,9 +22,9 @@ from ..eeprom import Eeprom
 from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, UnsettledReadings, save_motion
 from ..robot.calibration import (
-    AT_THE_LIMIT,
     MIN_RANGE_DEGREES,
     NarrowRange,
+    beyond_limits,
     calibrate_joint,
     calibrated_limits,
     count_angle,
@@ -361,8 +361,7 @@ async def capture(
     taken = {}
     for name in pose:
         spec = robot.joints[name]
-        # (At the very end it was calibrated at a joint reads a little past its limit, rounded inward: not beyond it.)
-        if not spec.min - AT_THE_LIMIT <= pose[name] <= spec.max + AT_THE_LIMIT:
+        if beyond_limits(spec, pose[name]):  # (a little past, as at a calibrated end: recorded at it, unsaid)
             warnings.append(
                 # To the count: a tenth of a degree would show a joint a count past its limit as at it.
                 f"{WARNING} joint {escape(name)} is at {signed_count_angle(pose[name])}, beyond its limits "

@@ -245,6 +245,9 @@ def scan(
     answered are named, with the rates they answered at.
     """
     settings = settings_of(ctx)
+    # The commands the notes name must hear what the scan heard: a longer allowance than the line's (a slow
+    # link) goes into them; a shorter one (a quick scan) leaves them the line's own.
+    named = settings if timeout is None or timeout <= settings.timeout else replace(settings, timeout=timeout)
     found: dict[int, list[int]] = {}  # baud -> the IDs that answered there so far (what Ctrl-C leaves to say)
     try:
         report = run(
@@ -262,10 +265,7 @@ def scan(
     except CliError as exc:
         if exc.code is not ExitCode.INTERRUPTED or not found:
             raise
-        raise _interrupted_scan(settings, found, as_json=as_json) from None
-    # The commands the notes name must hear what the scan heard: a longer allowance than the line's (a slow
-    # link) goes into them; a shorter one (a quick scan) leaves them the line's own.
-    named = settings if timeout is None or timeout <= settings.timeout else replace(settings, timeout=timeout)
+        raise _interrupted_scan(named, found, as_json=as_json) from None
     if as_json:
         scan_json(settings, bauds, report)
     else:
@@ -310,8 +310,8 @@ def scan(
 
 def _interrupted_scan(settings: Settings, found: dict[int, list[int]], *, as_json: bool) -> CliError:
     """Ctrl-C part-way through a scan: the servos that had answered are said (at the rates they answered at; their
-    EEPROMs not read, so a line that ignores rates shows one servo at each), with the command that lists them with
-    their settings, of those IDs at those rates only (seconds, not the scan cut short)."""
+    EEPROMs not read, so a pty, which ignores rates without saying so, shows one servo at each), with the command
+    that lists them with their settings, of those IDs at those rates only (seconds, not the scan cut short)."""
     if as_json:
         emit_json(
             {

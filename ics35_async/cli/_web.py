@@ -173,9 +173,9 @@ def web(
         which = "a request" if cut_short == 1 else f"{cut_short} requests"
         raise CliError(
             ExitCode.INTERRUPTED,
-            f"interrupted: Ctrl-C again stopped the server at once: {which} it was still answering cut short (a "
-            "write on its way may not have been read back: read the servo again); the live plots and motion "
-            "stopped as at any stop, every servo left as it was (holding ones hold)",
+            f"interrupted: Ctrl-C again stopped the server at once: {which} it was still answering cut short (done "
+            "in part, perhaps: some servos written, a write not read back: read the servos again); the live plots "
+            "and motion stopped as at any stop, every servo's torque left as it was (holding ones hold)",
         )
     return 0
 

@@ -384,8 +384,9 @@ async def scan(
     malformed port name: nothing about the rates).  ``on_probe`` hears each
     probe's outcome as it comes; ``on_found(id, baud)`` hears each ID as it
     first answers at a rate, before its EEPROM is read (so that a scan cut
-    short, cancelled, loses no servo it had found: on a line that ignores
-    rates one servo is heard at every rate, where the report lists it once).
+    short, cancelled, loses no servo it had found: on a pty, which ignores
+    rates without saying so, one servo is heard at every rate, where the report
+    lists it once).
 
     With ``ids`` fewer than every ID, a rate where none of them answers (nor comes
     back garbled) gets one ID read, unless the probes' own ID read was answered

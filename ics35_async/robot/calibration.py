@@ -76,6 +76,12 @@ LIMIT_STEP = 0.1
 AT_THE_LIMIT = LIMIT_STEP + 1 / units.COUNTS_PER_DEGREE
 
 
+def beyond_limits(joint: JointSpec, angle: float) -> bool:
+    """Whether ``joint`` read at ``angle`` (joint degrees) stands beyond its limits by more than a joint at the end
+    a calibration measured reads past them (:data:`AT_THE_LIMIT`; a hand-written limit is given the same room)."""
+    return not joint.min - AT_THE_LIMIT <= angle <= joint.max + AT_THE_LIMIT
+
+
 def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -> JointSpec:
     """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
     ``low``..``high`` (servo degrees), rounded inward to 0.1 degree.

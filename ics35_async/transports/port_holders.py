@@ -8,6 +8,7 @@ and ``ics35 doctor`` reports it.
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 
@@ -55,8 +56,20 @@ def holders(root: Path, device: str, *, own_pid: int | None = None) -> list[tupl
     return held
 
 
+# A busy port's error is made again at each of a reconnect's tries (ten a second): /proc is walked at most this often
+# for one device, the words kept meanwhile.
+HELD_BY_FOR = 2.0
+_held_by_seen: dict[str, tuple[float, str | None]] = {}
+
+
 def held_by(device: str) -> str | None:
     """Who else holds ``device`` open, in words (``python (process 1234)``), or None where none is found (not
     Linux, or only this process)."""
+    now = time.monotonic()
+    seen = _held_by_seen.get(device)
+    if seen is not None and now - seen[0] < HELD_BY_FOR:
+        return seen[1]
     found = holders(Path("/"), device, own_pid=os.getpid())
-    return ", ".join(f"{name} (process {pid})" for pid, name in found) or None
+    words = ", ".join(f"{name} (process {pid})" for pid, name in found) or None
+    _held_by_seen[device] = (now, words)
+    return words

@@ -118,9 +118,9 @@ def port_gone(code: int | None) -> OSError:
     """The error a read or write of a tty that failed with ``code`` raises: for a device gone, in one wording
     whichever call met it first (the read's hang-up and the write's "Input/output error" were one adapter pulled
     out); any other failure in the system's words."""
+    code = code or errno.EIO  # (none given, or the executor's 0: a failure all the same)
     if code in GONE_ERRNOS:
         return OSError(code, "the serial port hung up (device disconnected?)")
-    code = errno.EIO if code is None else code
     return OSError(code, os.strerror(code))
 
 

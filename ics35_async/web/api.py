@@ -102,6 +102,18 @@ async def no_reply_response(session: LineSession, exc: ReplyTimeout, *, look_at_
     return error_response(exc, answer.pop("error"), **answer)
 
 
+# The POST routes that only read or open (a scan, a plan, a survey, a backup, a Connect, a live plot stopped): one
+# cut short by the server's stop changed no servo.  Every other POST may have (a write, a move, a free, an Apply).
+READS_ONLY = frozenset({"/api/connect", "/api/scan", "/api/id/survey", "/api/many/backup", "/api/live/stop"})
+
+
+def may_change_servos(method: str, path: str) -> bool:
+    """Whether a request of ``method`` to ``path`` may change a servo (what one cut short may have done in part)."""
+    if method in ("GET", "HEAD", "OPTIONS"):
+        return False
+    return path not in READS_ONLY and not path.endswith("/plan")
+
+
 def endpoint(handler: Handler, *, look_at_other_rates: bool = False) -> Callable[[Request], Awaitable[Response]]:
     """``handler`` answering JSON; a servo that did not answer is explained (:func:`no_reply_response`), and
     with ``look_at_other_rates`` looked for at the other baud rates.

@@ -27,7 +27,7 @@ from starlette.staticfiles import StaticFiles
 from ..errors import InvalidArgument, error_text
 from ..running import _after_stop
 from ..terminal import ctrl_c_typed
-from .api import ROUTES
+from .api import ROUTES, may_change_servos
 from .config import LineConfig
 from .joints import RobotSession, not_freed_at_start
 from .security import TokenGuard, is_loopback
@@ -199,8 +199,9 @@ class _Answering:
 
     A request cut short before its answer began is answered 503 with the reason (:data:`STOPPING_REASON`): the
     person stopped the server, which is no fault of its own (uvicorn would answer 500 and log the cancellation).
-    A change cut short (any method but a read's) says it may be done in part (:data:`CUT_SHORT_REASON`): it was
-    under way, and Many servos' Apply had written some servos when "the server is stopping" read as a refusal.
+    A change cut short (a request that may change a servo: :func:`~ics35_async.web.api.may_change_servos`) says
+    it may be done in part (:data:`CUT_SHORT_REASON`): it was under way, and Many servos' Apply had written some
+    servos when "the server is stopping" read as a refusal.
     """
 
     def __init__(self, app: Any) -> None:
@@ -225,7 +226,8 @@ class _Answering:
         except asyncio.CancelledError:
             if not self.cutting_short or answer_begun:
                 raise  # (an answer under way can only be broken off: uvicorn closes its connection)
-            await _stopping_answer(send, STOPPING_REASON if scope["method"] in ("GET", "HEAD") else CUT_SHORT_REASON)
+            changing = may_change_servos(scope["method"], scope["path"])
+            await _stopping_answer(send, CUT_SHORT_REASON if changing else STOPPING_REASON)
         finally:
             self.requests -= 1
 

@@ -443,9 +443,10 @@ class LineSession:
     def line(self) -> Bus:
         if self.bus is None or not self.bus.is_open:
             # (why the last Connect failed, where it did: a port was chosen, and "choose a port" alone hid it)
+            if self.error is not None and self.error.endswith(MISSING_AT_CONNECT):  # (it says what to do itself)
+                raise BusClosed(f"not connected: {self.error}")
             why = "" if self.error is None else f"{self.error}; "
-            then = "" if "press Connect" in why else "choose a port and press Connect on the Line page"
-            raise BusClosed(f"not connected: {why}{then}".removesuffix("; "))
+            raise BusClosed(f"not connected: {why}choose a port and press Connect on the Line page")
         stopped = self._robot_stopped()
         if stopped is not None:
             raise BusClosed(f"not connected: {stopped}")
@@ -1287,7 +1288,7 @@ class LineSession:
                 after = (
                     "" if sent_from[0] is None else "; once the line is back, press Who is on the line? to see which"
                 )
-                raise PortLost(f"{error_text(exc)} {cut_short_words(sent_from[0], new_id)}{after}") from exc
+                raise PortLost(f"{error_text(exc)}: {cut_short_words(sent_from[0], new_id)}{after}") from exc
         if change.written and change.old_id in self._limits:
             self._limits[new_id] = self._limits.pop(change.old_id)
         if change.written:

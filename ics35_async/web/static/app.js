@@ -441,11 +441,13 @@ function typedEdits() {
 }
 
 async function loadServo(typed = {}) {
+  const asked = $("#servo-id").value.trim(), mine = (state.loads ?? 0) + 1;  // (readServo counts this load)
   try {
     await readServo(typed);
   } catch (e) {
-    // The servo did not answer (or answered garbled): what an action on no servo shown then says.
-    if (e.status === 502 || e.status === 504) state.readFailed = $("#servo-id").value.trim();
+    // The servo did not answer (or answered garbled): what an action on no servo shown then says, unless a
+    // later Read overtook this one.
+    if ((e.status === 502 || e.status === 504) && state.loads === mine) state.readFailed = asked;
     throw e;
   }
 }
@@ -651,7 +653,8 @@ async function writeEeprom() {
   const wasOn = $("#motion-switch").checked;
   // The outcome is shown whatever the read after it meets (the server stopped, the servo unplugged): hidden
   // behind that read's error, a verified write left the person guessing what the servo holds.
-  try { await readAfterWrite(servoId(), result); } finally { $("#write-result").replaceChildren(resultText(result)); }
+  // (the ID the servo answers as now: followNewId put it in the box; the page still shows the old one)
+  try { await readAfterWrite(+$("#servo-id").value, result); } finally { $("#write-result").replaceChildren(resultText(result)); }
   say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}${motionOffAfter(wasOn)}`,
     result.verified || !result.written ? "info" : "error");
 }
@@ -712,7 +715,7 @@ async function restoreServo() {
   $("#restore-btn").disabled = true;
   const who = followNewId(result);  // "also its ID": the servo answers at the backup's
   const wasOn = $("#motion-switch").checked;
-  try { await readAfterWrite(servoId(), result); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
+  try { await readAfterWrite(+$("#servo-id").value, result); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
   // (on top too, as a write's: beside the button alone, below the diff, it went unseen)
   say(`${who}: ${result.written ? (result.verified ? "restored and verified" : "read-back differs") : "nothing to restore"}${motionOffAfter(wasOn)}`,
     result.verified || !result.written ? "info" : "error");
@@ -891,7 +894,8 @@ async function showManyLast() {
   const servos = servosNamed(last.ids);
   if (last.running) {
     $("#many-last").textContent = `an Apply to ${servos} is running, from this page or another: its outcome shows here when it ends`;
-    setTimeout(() => showManyLast().catch(() => {}), 500);
+    clearTimeout(state.manyWait);  // (one wait: the page left and opened again meanwhile started another)
+    state.manyWait = setTimeout(() => showManyLast().catch(() => {}), 500);
     return;
   }
   $("#many-last").textContent = `the last Apply (${servos}), from this page or another:`;
