@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -727,21 +728,15 @@ def test_doctor_on_a_port_another_program_holds_says_so_once(cli: Any, pty_sim: 
     # It said who held the port, then tried to open it all the same and said "in use by another program" too:
     # two errors for one cause.
     sim = pty_sim("--ids", "1", "--fast")
-    holding = "import os, sys, time; os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY); time.sleep(60)"
-    holder = subprocess.Popen([sys.executable, "-c", holding, sim.path])
-    try:
-        wait_until_held(os.path.realpath(sim.path), holder.pid)
+    with held_open(sim.path, exclusive=False) as (pid, name):
         text = cli("--port", sim.path, "doctor", "--ids", "1")
         said = " ".join(text.err.split())
         assert text.code == ExitCode.PORT and said.count("error:") == 1, text.err
-        assert f"is held open by python (process {holder.pid})" in said and f"kill {holder.pid}" in said, said
+        assert f"is held open by {name} (process {pid})" in said and f"kill {pid}" in said, said
         assert "in use by another program" not in said, said
         data = cli("--port", sim.path, "doctor", "--ids", "1", "--json")
         errors = [f for f in data.json()["findings"] if f["severity"] == "error"]
         assert data.code == ExitCode.PORT and [f["check"] for f in errors] == ["holder"], errors
-    finally:
-        holder.kill()
-        holder.wait()
 
 
 @pytest.mark.pty
@@ -750,15 +745,26 @@ def test_a_command_on_a_port_another_program_holds_names_that_program(cli: Any, 
     # "in use by another program (or already open in this one)", hint "close the other program (another ics35, a
     # serial monitor, ModemManager)": which of them, doctor knew; the command did not say.
     sim = pty_sim("--ids", "1", "--fast")
-    holding = "import serial, sys, time; port = serial.Serial(sys.argv[1], exclusive=True); time.sleep(60)"
-    holder = subprocess.Popen([sys.executable, "-c", holding, sim.path])
-    try:
-        wait_until_held(os.path.realpath(sim.path), holder.pid)
+    with held_open(sim.path, exclusive=True) as (pid, name):
         result = cli("--port", sim.path, "get", "1", "speed")
         said = " ".join(result.err.split())
         assert result.code == ExitCode.PORT and "in use by another program" in said, said
-        name = Path(f"/proc/{holder.pid}/comm").read_text().strip()  # (python, python3, python3.11: as it runs)
-        assert f"held open by {name} (process {holder.pid})" in said and f"kill {holder.pid}" in said, said
+        assert f"held open by {name} (process {pid})" in said and f"kill {pid}" in said, said
+
+
+@contextlib.contextmanager
+def held_open(path: str, *, exclusive: bool) -> Iterator[tuple[int, str]]:
+    """``path`` held open by another process (with ``exclusive``, as pyserial's exclusive open holds it: other
+    opens are refused); its PID and its name as the system gives it (python, python3, python3.11)."""
+    holding = (
+        "import serial, sys, time; port = serial.Serial(sys.argv[1], exclusive=True); time.sleep(60)"
+        if exclusive
+        else "import os, sys, time; os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY); time.sleep(60)"
+    )
+    holder = subprocess.Popen([sys.executable, "-c", holding, path])
+    try:
+        wait_until_held(os.path.realpath(path), holder.pid)
+        yield holder.pid, Path(f"/proc/{holder.pid}/comm").read_text().strip()
     finally:
         holder.kill()
         holder.wait()

@@ -350,23 +350,30 @@ def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Brow
         expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("may"))
 
 
+def write_or_restore_shown(p: Page, line: PtyLine, tmp_path: Path, how: str) -> tuple[str, str]:
+    """Servo 1's page with a write of speed 90 (``how`` "write") or a restore of its backup over speed 33
+    ("restore") shown and ready: its button and where its outcome goes."""
+    open_servo_page(p, 1)
+    if how == "write":
+        p.fill("#eeprom-table [name=speed]", "90")
+        p.click("#plan-btn")
+        button, result = "#write-btn", "#write-result"
+    else:
+        backup = backed_up(p, tmp_path)
+        line.sim.servo(1).eeprom = line.sim.servo(1).eeprom.replace(speed=33)
+        p.set_input_files("#restore-file", str(backup))
+        button, result = "#restore-btn", "#restore-result"
+    expect(p.locator(button)).to_be_enabled()
+    return button, result
+
+
 @pytest.mark.parametrize("how", ["write", "restore"])
 def test_a_write_whose_read_after_fails_still_shows_its_outcome(browser: Browser, tmp_path: Path, how: str) -> None:
     # The server stopped (Ctrl-C) as it answered the write: the write was verified, but the page read the servo
     # again before showing it, that read failed, and the page said only "the server does not answer".
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        if how == "write":
-            p.fill("#eeprom-table [name=speed]", "90")
-            p.click("#plan-btn")
-            button, result = "#write-btn", "#write-result"
-        else:
-            backup = backed_up(p, tmp_path)
-            line.sim.servo(1).eeprom = line.sim.servo(1).eeprom.replace(speed=33)
-            p.set_input_files("#restore-file", str(backup))
-            button, result = "#restore-btn", "#restore-result"
-        expect(p.locator(button)).to_be_enabled()
+        button, result = write_or_restore_shown(p, line, tmp_path, how)
         p.route("**/api/servo/1/eeprom", lambda route: route.abort())  # the read after it fails as with no server
         p.click(button)
         expect(p.locator("#message")).to_contain_text("the configurator's server does not answer")
@@ -382,17 +389,7 @@ def test_a_verified_write_whose_read_after_met_a_lost_port_is_not_told_to_try_ag
     # back the page said "the line is back: try again", which invited a second write of one already done.
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        if how == "write":
-            p.fill("#eeprom-table [name=speed]", "90")
-            p.click("#plan-btn")
-            button, result = "#write-btn", "#write-result"
-        else:
-            backup = backed_up(p, tmp_path)
-            line.sim.servo(1).eeprom = line.sim.servo(1).eeprom.replace(speed=33)
-            p.set_input_files("#restore-file", str(backup))
-            button, result = "#restore-btn", "#restore-result"
-        expect(p.locator(button)).to_be_enabled()
+        button, result = write_or_restore_shown(p, line, tmp_path, how)
 
         def unplugged_first(route: Any) -> None:  # (the server's read then meets the lost port itself)
             line.sim.unplug()
