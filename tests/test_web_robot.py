@@ -466,8 +466,16 @@ def test_reconnect_holding_the_lost_joints_says_which_did_not_answer(robot: Any)
     said = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["outcome"]
     assert said == "reconnected; shoulder holds its last target; elbow not answering yet", said
     elbow.command_position(degrees_to_position(50))  # (elsewhere meanwhile)
-    line.add_device(elbow)  # (back before it went offline: its last target reaches it, as the answer said)
-    wait_for(lambda: elbow.target == degrees_to_position(20))
+    line.add_device(elbow)
+
+    # Back before the stream took it for offline (3 silent cycles): its last target reaches it.  Back after (a
+    # loaded machine's test thread is that slow): it is held where it stands, sent nothing, and the page says so.
+    # Either way nothing else is sent to it.
+    def held() -> Any:
+        return next(j for j in client.get("/api/robot").json()["joints"] if j["name"] == "elbow")["held"]
+
+    wait_for(lambda: elbow.target == degrees_to_position(20) or held() == "rejoined")
+    assert elbow.target in (degrees_to_position(20), degrees_to_position(50)) and not elbow.free
 
 
 def test_a_line_lost_again_does_not_leave_the_last_reconnects_words_on_the_state_line(robot: Any) -> None:
