@@ -1055,6 +1055,21 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
         expect(p.locator("#robot-state")).to_contain_text("all within limits")
 
 
+def test_a_motion_file_that_is_not_json_is_said_to_be_no_motion(
+    browser: Browser, robot_server: RobotServer, tmp_path: Path
+) -> None:
+    # "notes.txt: not JSON (Unexpected token 'o', "not json" is not valid JSON)": the browser parser's words.
+    with robot_server_page(browser, robot_server) as p:
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        (tmp_path / "notes.txt").write_text("not json")
+        p.set_input_files("#robot-motion-file", str(tmp_path / "notes.txt"))
+        p.click("#robot-play")
+        expect(p.locator("#message")).to_have_text(
+            "notes.txt is no motion: not JSON (a motion is the .json file ics35 teach writes)"
+        )
+
+
 def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
     browser: Browser, robot_server: RobotServer
 ) -> None:

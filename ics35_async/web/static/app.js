@@ -1228,7 +1228,9 @@ async function moveJoint(name, degrees) {
 async function playMotion() {
   const file = $("#robot-motion-file").files[0];
   let motion;
-  try { motion = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
+  try { motion = JSON.parse(await file.text()); } catch (e) {
+    say(`${file.name} is no motion: not JSON (a motion is the .json file ics35 teach writes)`); return;
+  }
   onRobot(await api("/api/robot/play", { motion, speed: numberIn($("#robot-speed"), "the speed") }));
 }
 
