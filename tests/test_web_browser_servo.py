@@ -616,6 +616,18 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
         assert line.sim.servo(1).eeprom.punch == 3
 
 
+def test_the_many_servos_page_shows_each_fields_range(browser: Browser) -> None:
+    # The Servo page showed "1..127" beside speed; the Many servos page showed no range for any field, so a value
+    # out of range was found only by pressing Apply.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#many")
+        speed = p.locator("#many-fields tr[data-field='speed']")
+        expect(speed.locator("td.range")).to_have_text("1..127")
+        expect(speed.locator("input[type=number]")).to_have_attribute("max", "127")
+        expect(p.locator("#many-fields tr[data-field='stretch_gain'] td.range")).to_have_text("2..254 even")
+
+
 def test_the_many_servos_page_shows_the_last_applys_outcome_after_a_reload(browser: Browser) -> None:
     # The page reloaded as Apply ran: the servos were written, the page said nothing of it.
     line = PtyLine((1,))

@@ -22,6 +22,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ..diagnose.system import missing_adapter_notes
+from ..eeprom import Eeprom
 from ..errors import (
     BadReply,
     BusClosed,
@@ -46,6 +47,7 @@ from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
 from .session import PAGE_NAME_MAX, JogFreedServo, LineSession
+from .views import field_rows
 
 log = logging.getLogger("ics35_async.web")
 
@@ -313,6 +315,11 @@ async def many_apply(request: Request, session: LineSession) -> Any:
     return {"results": await session.apply_to_many(ids, data)}
 
 
+async def many_fields(request: Request, session: LineSession) -> Any:
+    """Each EEPROM field's unit, range and meaning, as the Servo page shows them (the Many servos page's table)."""
+    return {"fields": field_rows(Eeprom.factory())}
+
+
 async def many_last(request: Request, session: LineSession) -> Any:
     return {"last": session.many_last}
 
@@ -551,6 +558,7 @@ ROUTES = [
     Route("/api/many/apply", endpoint(many_apply), methods=["POST"]),
     Route("/api/many/backup", endpoint(many_backup), methods=["POST"]),
     Route("/api/many/last", endpoint(many_last)),
+    Route("/api/many/fields", endpoint(many_fields)),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),

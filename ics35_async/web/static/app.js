@@ -863,7 +863,21 @@ function fillManyFields() {
   if (body.children.length) return;
   if (!$("#many-ids").value) $("#many-ids").value = servosHere().join(",");
   for (const name of PROFILE_FIELDS) {
-    body.append(el("tr", {}, el("td", {}, el("input", { type: "checkbox", name: `use-${name}` })), el("td", {}, name), el("td", {}, el("input", { type: "number", name: `value-${name}` }))));
+    body.append(el("tr", { "data-field": name }, el("td", {}, el("input", { type: "checkbox", name: `use-${name}` })), el("td", {}, name),
+      el("td", {}, el("input", { type: "number", name: `value-${name}` })), el("td", { class: "range" })));
+  }
+  showManyRanges().catch(() => {});
+}
+
+// Each field's range, as the Servo page shows it (the library's, from the server): a value out of it is seen
+// before Apply, not only refused by it.
+async function showManyRanges() {
+  const { fields } = await api("/api/many/fields");
+  for (const f of fields) {
+    const row = document.querySelector(`#many-fields tr[data-field=${f.name}]`);
+    if (!row || f.low === undefined) continue;
+    row.querySelector(".range").textContent = `${f.low}..${f.high}${f.even ? " even" : ""}`;
+    Object.assign(row.querySelector("input[type=number]"), { min: f.low, max: f.high, step: f.even ? 2 : 1 });
   }
 }
 
