@@ -888,6 +888,9 @@ def test_the_ram_box_shows_what_the_servo_has_for_the_parameter_chosen(browser: 
         p.click("#ram-write")
         expect(p.locator("#ram-result")).to_contain_text("speed = 60")
         expect(p.locator("#ram-value")).to_have_value("60")
+        # (the RAM read after the write shown: ended after the fill below, it put the box back to 60, and on a loaded
+        # machine the next write sent 60)
+        expect(p.locator("#ram-table tr", has_text="speed")).to_contain_text("60")
         assert servo.speed == 60 and servo.stretch == 30
         # A refused write leaves no earlier success beside it ("speed = 60 in RAM" stood beside the refusal).
         p.fill("#ram-value", "500")
