@@ -946,13 +946,12 @@ class LineSession:
         results: list[dict[str, Any]] = []
         self.many_last = {"ids": checked, "running": True, "results": results}
         try:
-            return await self._apply_each(checked, profile, results)
+            await self._apply_each(checked, profile, results)
         finally:
             self.many_last = {"ids": checked, "running": False, "results": results}
+        return results
 
-    async def _apply_each(
-        self, checked: list[int], profile: Mapping[str, Any], results: list[dict[str, Any]]
-    ) -> list[dict[str, Any]]:
+    async def _apply_each(self, checked: list[int], profile: Mapping[str, Any], results: list[dict[str, Any]]) -> None:
         """:meth:`apply_to_many`'s writes, each servo's outcome added to ``results`` as it comes."""
         for k, sid in enumerate(checked):
             report: ServoWriteReport | None = None  # (None: it failed before the write went out)
@@ -967,13 +966,14 @@ class LineSession:
             except (PortLost, BusClosed, SerialPortError, OSError) as exc:
                 results.append({"id": sid, "error": error_text(exc), "kind": type(exc).__name__, **_how_far(report)})
                 rest = f"not tried: the line was lost at servo {sid}; apply again once it is back"
-                results += [{"id": i, "error": rest, "kind": "NotTried", "not_tried": True} for i in checked[k + 1 :]]
+                results.extend(
+                    {"id": i, "error": rest, "kind": "NotTried", "not_tried": True} for i in checked[k + 1 :]
+                )
                 break
             except VerifyError as exc:  # (the write went out and was taken, or partly: never "failed")
                 results.append({"id": sid, "error": self._many_words(exc), "kind": "VerifyError", "written": True})
             except IcsError as exc:
                 results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
-        return results
 
     def _many_words(self, exc: IcsError) -> str:
         """``exc``'s words for the Many servos page's edits, naming no servo and showing no bytes (the Traffic page

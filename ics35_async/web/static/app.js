@@ -635,6 +635,12 @@ async function readAfterWrite(id, result) {
   }
 }
 
+// A write's or restore's outcome on top (``done``: "written", "restored"; ``none``: what nothing to do is called).
+function sayWritten(who, result, done, none, wasOn) {
+  const what = result.written ? (result.verified ? `${done} and verified` : "read-back differs") : none;
+  say(`${who}: ${what}${motionOffAfter(wasOn)}`, result.verified || !result.written ? "info" : "error");
+}
+
 async function writeEeprom() {
   const id = servoId(), typed = typedEdits();
   const request = { changes: editedFields(), ...allowances(), before: state.plan.before };
@@ -655,8 +661,7 @@ async function writeEeprom() {
   // behind that read's error, a verified write left the person guessing what the servo holds.
   // (the ID the servo answers as now: followNewId put it in the box; the page still shows the old one)
   try { await readAfterWrite(+$("#servo-id").value, result); } finally { $("#write-result").replaceChildren(resultText(result)); }
-  say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}${motionOffAfter(wasOn)}`,
-    result.verified || !result.written ? "info" : "error");
+  sayWritten(who, result, "written", "nothing to write", wasOn);
 }
 
 // The name a backup of ids is offered under, as the server names it: servo-05.json, servos-01-17.json.
@@ -717,8 +722,7 @@ async function restoreServo() {
   const wasOn = $("#motion-switch").checked;
   try { await readAfterWrite(+$("#servo-id").value, result); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
   // (on top too, as a write's: beside the button alone, below the diff, it went unseen)
-  say(`${who}: ${result.written ? (result.verified ? "restored and verified" : "read-back differs") : "nothing to restore"}${motionOffAfter(wasOn)}`,
-    result.verified || !result.written ? "info" : "error");
+  sayWritten(who, result, "restored", "nothing to restore", wasOn);
 }
 
 async function writeRam() {
