@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import click
 import pytest
 
 from ics35_async.cli import ExitCode
@@ -469,3 +470,57 @@ def test_one_servo_in_a_dump_of_all_and_in_a_robot_files_line_is_named_as_one(cl
     shown = cli("check", str(robot))
     assert shown.code == 0, shown.err
     assert "115200 baud, as fast as the line goes, ID 1" in " ".join(shown.out.split()), shown.out
+
+
+def _numeric_options() -> list[tuple[list[str], str, float | None, float | None, bool]]:
+    """(command path, option, low, high, whole) for every option of every command that takes a bounded number."""
+    from ics35_async.cli import cli as group
+
+    found: list[tuple[list[str], str, float | None, float | None, bool]] = []
+    seen: set[tuple[str, object, object]] = set()  # (the line options, on every command: tried on the first)
+
+    def walk(command: click.Command, path: list[str]) -> None:
+        ctx = click.Context(command)
+        if isinstance(command, click.Group):
+            for name in command.list_commands(ctx):
+                sub = command.get_command(ctx, name)
+                assert sub is not None
+                walk(sub, [*path, name])
+        for param in command.params:
+            kind = param.type
+            if isinstance(param, click.Option) and isinstance(kind, (click.FloatRange, click.IntRange)):
+                if param.count or (param.opts[0], kind.min, kind.max) in seen:
+                    continue
+                seen.add((param.opts[0], kind.min, kind.max))
+                found.append(
+                    (
+                        path,
+                        param.opts[0],
+                        kind.min,
+                        kind.max,
+                        isinstance(kind, click.IntRange) or kind.name == "integer",
+                    )  # type: ignore[arg-type]
+                )
+
+    walk(group, [])
+    return found
+
+
+@pytest.mark.parametrize(
+    "path,option,low,high,whole", [pytest.param(*o, id=" ".join([*o[0], o[1]])) for o in _numeric_options()]
+)
+def test_a_bad_number_is_said_in_words_not_clicks_type_names(
+    cli: Any, path: list[str], option: str, low: float | None, high: float | None, whole: bool
+) -> None:
+    # Click said "'x' is not a valid float range." and "9.0 is not in the range 0.001<=x<=5.0.".
+    result = cli(*path, option, "x")
+    assert result.code == ExitCode.USAGE, result.err
+    said = "not a whole number" if whole else "not a number"
+    assert f"'x' is {said}" in result.err and "range" not in result.err, result.err
+    for beyond in ([high + 1] if high is not None else []) + ([low - 1] if low is not None else []):
+        shown = f"{beyond:g}"
+        result = cli(*path, option, shown)
+        assert result.code == ExitCode.USAGE, result.err
+        assert "<=" not in result.err and ".0 " not in result.err and shown in result.err, result.err
+        bound = f"{high:g}" if beyond > (high or 0) else f"{low:g}"
+        assert bound in result.err, result.err

@@ -40,6 +40,7 @@ from ._live import (
     stream_options,
 )
 from ._live_view import LiveState
+from ._numbers import Number
 from ._plot import Recorder
 from ._signals import stop_name
 from ._telemetry import Telemetry
@@ -72,11 +73,11 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float) -> TargetFuncti
 )
 @click.option(
     "--amplitude",
-    type=click.FloatRange(1, 120),
+    type=Number(1, 120),
     default=None,
     help="Wave amplitude in degrees (default: 45 on the simulator, 15 on hardware).",
 )
-@click.option("--frequency", type=click.FloatRange(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
+@click.option("--frequency", type=Number(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
 @click.option(
     "--reconnect",
     is_flag=True,

@@ -36,6 +36,7 @@ from ._common import (
 )
 from ._console import say, say_labelled
 from ._errors import answered_at_another_id, answered_garbled, nothing_answered, trying_rates
+from ._numbers import WholeNumber
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -164,7 +165,7 @@ def print_report(
 @all_ids_option("IDs to look for on the line.")
 @click.option(
     "--samples",
-    type=click.IntRange(1, 1000),
+    type=WholeNumber(1, 1000),
     default=None,
     help="Reads per servo (default: 200 in all, 5 or more each).",
 )

@@ -16,6 +16,7 @@ import click
 
 from ..eeprom import FACTORY_BAUD
 from ..protocol.wire import ADAPTER_LATENCY, ALL_BAUDS, MAX_RETRIES, TOOL_RETRIES
+from ._numbers import Number, WholeNumber
 from ._settings import DEFAULT_PORT, Settings, setup_logging
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -50,14 +51,14 @@ LINE_OPTIONS = (
         ("--timeout",),
         "Seconds allowed on top of the wire time for each reply (USB adapter latency).",
         {"default": ADAPTER_LATENCY, "show_default": True},
-        {"type": click.FloatRange(0.0, 5.0), "metavar": "SECONDS"},
+        {"type": Number(0.0, 5.0), "metavar": "SECONDS"},
     ),
     LineOption(
         "retries",
         ("--retries",),
         "Retries for reads and positions.",
         {"default": TOOL_RETRIES, "show_default": True},
-        {"type": click.IntRange(0, MAX_RETRIES)},
+        {"type": WholeNumber(0, MAX_RETRIES)},
     ),
     LineOption(
         "no_echo",

@@ -53,6 +53,7 @@ from ._console import (
     scan_progress,
 )
 from ._live_view import LEAVE_OUT, LiveState
+from ._numbers import Number, WholeNumber
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
 from ._telemetry import Telemetry
@@ -453,14 +454,14 @@ def stream_options(command: F) -> F:
 _STREAM_OPTIONS = (
     click.option(
         "--rate",
-        type=click.FloatRange(0.1, 10000),
+        type=Number(0.1, 10000),
         default=None,
         help="Position cycles per second (default: as fast as the line allows).",
     ),
     click.option(
         "--telemetry",
         "per_cycle",
-        type=click.IntRange(0, 32),
+        type=WholeNumber(0, 32),
         default=2,
         show_default=True,
         help="Servos whose current and temperature are read per cycle (a servo that stopped answering is skipped).",

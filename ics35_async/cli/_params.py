@@ -14,6 +14,7 @@ from ..errors import InvalidArgument
 from ..protocol.wire import ALL_BAUDS as ALL_BAUDS  # (re-exported to the commands: _common)
 from ..protocol.wire import ALL_IDS
 from ..units import parse_ids, plain_count
+from ._numbers import Number
 from ._settings import Settings
 
 T = TypeVar("T")
@@ -196,7 +197,7 @@ def seconds_option(
     the help; a default, when there is one, is shown."""
     return click.option(
         flag,
-        type=click.FloatRange(low, high, min_open=above_low),
+        type=Number(low, high, min_open=above_low),
         default=default,
         show_default=default is not None,
         metavar="SECONDS",

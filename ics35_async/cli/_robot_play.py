@@ -25,6 +25,7 @@ from ..stream import ON_CLOSE
 from ..tasks import retrieved
 from ._common import CliError, ExitCode, choice_option, out, seconds_option, settings_of
 from ._console import TitleInParts, say, say_labelled
+from ._numbers import Number
 from ._params import yes_option
 from ._prompt import confirm
 from ._robot_common import (
@@ -81,7 +82,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @click.argument("motion_file", metavar="MOTION.json")
 @click.option(
     "--speed",
-    type=click.FloatRange(*SPEEDS),
+    type=Number(*SPEEDS),
     default=1.0,
     show_default=True,
     help="Time scale: 0.5 plays at half speed.",

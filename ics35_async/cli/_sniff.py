@@ -17,6 +17,7 @@ from ..protocol.listening import DEFAULT_GAP, HeardTransaction, LineListener
 from ..transports.serial_port import open_serial, posix_fd
 from ._common import CliError, ExitCode, check_output_path, out, seconds_option, settings_of, translate
 from ._console import say, say_labelled
+from ._numbers import Number, WholeNumber
 from ._settings import Settings
 
 POLL = 0.05  # seconds between looks at the clock while the line is silent
@@ -120,10 +121,10 @@ def listen(settings: Settings, listener: LineListener, output: HeardOutput, dura
 @click.command()
 @click.option("--output", "-o", "output_path", default=None, help="Also write every line to this file.")
 @seconds_option("--duration", "Stop after this long.", low=0, above_low=True)
-@click.option("--count", type=click.IntRange(min=1), default=None, help="Stop after this many transactions.")
+@click.option("--count", type=WholeNumber(min=1), default=None, help="Stop after this many transactions.")
 @click.option(
     "--gap",
-    type=click.FloatRange(min=0, min_open=True),
+    type=Number(min=0, min_open=True),
     default=DEFAULT_GAP * 1e3,
     show_default=True,
     help="Silence (ms) after which a reply is no longer expected.",
