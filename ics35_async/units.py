@@ -179,14 +179,27 @@ def parse_ids(text: str, *, example: str | None = "3, 1-12 or 0,4,7") -> list[in
         high = plain_count(high_text) if dash else low
         if low is None or high is None:
             raise InvalidArgument(
-                f"{part!r} is not an ID or a range of IDs" + (f" (write e.g. {example})" if example else "")
+                f"{part!r} is not an ID (0..31) or a range of IDs" + (f" (write e.g. {example})" if example else "")
             )
         if low > high:
             raise InvalidArgument(f"the range {part!r} runs backwards")
-        if not 0 <= low <= high <= 31:
-            raise InvalidArgument(f"the IDs {part!r} must lie within 0..31")
+        if low == high:
+            check_int("servo ID", low, 0, 31)  # (one ID refused in the words every other refusal of one uses)
+        elif high > 31:
+            raise InvalidArgument(f"the range {part!r} goes beyond 0..31")
         ids.update(range(low, high + 1))
     return sorted(ids)
+
+
+def parse_id_list(text: str) -> list[int]:
+    """IDs as a person types them in a box or an option: ``"1-12"``, ``"0,3 5-7"``, ``"all"`` -> the sorted unique
+    IDs; InvalidArgument for anything else, or for nothing (the command line's and the configurator's rule)."""
+    if text.strip().lower() in ("all", "*"):
+        return list(range(32))
+    ids = parse_ids(text, example=None)  # (each caller shows its own example, with `all`)
+    if not ids:
+        raise InvalidArgument("no IDs given")
+    return ids
 
 
 def position_to_degrees(position: int) -> float:

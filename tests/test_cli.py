@@ -19,7 +19,7 @@ import pytest
 
 from ics35_async import units
 from ics35_async.cli import ExitCode
-from ics35_async.cli._common import CliError, Settings, parse_id_list, translate
+from ics35_async.cli._common import CliError, Settings, translate
 from ics35_async.cli._console import TitleInParts
 from ics35_async.cli._live import forced_out
 from ics35_async.cli._live_view import LiveState
@@ -81,11 +81,11 @@ def test_unknown_param_names_the_choices(cli: Any, sim_line: Any) -> None:
 
 
 def test_id_lists() -> None:
-    assert parse_id_list("1-3,7, 9") == [1, 2, 3, 7, 9]
-    assert parse_id_list("all") == list(range(32))
+    assert units.parse_id_list("1-3,7, 9") == [1, 2, 3, 7, 9]
+    assert units.parse_id_list("all") == list(range(32))
     for bad in ("3-1", "x", "31-32", ""):
         with pytest.raises(InvalidArgument):
-            parse_id_list(bad)
+            units.parse_id_list(bad)
 
 
 # --------------------------------------------------------------------------- reads, with --json

@@ -179,10 +179,10 @@ def test_sim_help_names_every_command_its_console_takes(cli: Any) -> None:
     ("args", "says"),
     [
         (["--bogus"], "Error: Unrecognized arguments: --bogus"),
-        (["--ids", "x"], "Error: --ids x: 'x' is not an ID or a range of IDs"),
+        (["--ids", "x"], "Error: --ids x: 'x' is not an ID (0..31) or a range of IDs"),
         (["--ids", ""], "Error: --ids '': no IDs given: write IDs 0..31"),  # (was a line of no servos)
-        (["--noisy", "40"], "Error: --noisy 40: the IDs '40' must lie within 0..31"),
-        (["--ics36", "x"], "Error: --ics36 x: 'x' is not an ID or a range of IDs"),
+        (["--noisy", "40"], "Error: --noisy 40: servo ID must be in 0..31, got 40"),
+        (["--ics36", "x"], "Error: --ics36 x: 'x' is not an ID (0..31) or a range of IDs"),
         (["--ids", "1-3", "--noisy", "7"], "Error: No servo of this line is built from ID 7 given in noisy"),
         (["--baud", "3"], "Error: Baud rate must be one of 115200, 625000, 1250000, got 3"),
         (["--baud", "fast"], "Error: Argument --baud: invalid int value: 'fast'"),
@@ -410,6 +410,12 @@ def test_an_id_list_that_is_not_one_is_refused_with_one_example(cli: Any) -> Non
     assert result.code == ExitCode.USAGE, result.err
     said = " ".join(result.err.split())
     assert said.count("write e.g.") == 1 and "0,4,7 or all" in said, said
+    # `ics35 scan --ids 40`: "the IDs '40' must lie within 0..31 (IDs are 0..31; write e.g. ...)": the range twice.
+    for ids, says in (("40", "servo ID must be in 0..31, got 40"), ("3-40", "'3-40'"), ("x", "'x'")):
+        result = cli("scan", "--ids", ids)
+        assert result.code == ExitCode.USAGE, result.err
+        said = " ".join(result.err.split())
+        assert said.count("0..31") == 1 and says in said and said.count("write e.g.") == 1, said
 
 
 def test_the_search_of_the_other_rates_never_says_a_rate_that_answered_did_not() -> None:

@@ -1988,3 +1988,18 @@ def test_the_line_pages_reads_say_a_servo_is_not_answering_after_two_failed_roun
             assert again["telemetry_error"] is None, again
     finally:
         sim.close()
+
+
+def test_ids_typed_in_a_box_are_read_by_the_librarys_rule(serve: Any) -> None:
+    # (the page's own parser took "5-2" as 2..5 and refused "1 2", where the command line does the opposite)
+    client, _ = serve()
+    assert client.get("/api/ids", params={"text": "1 2, 5-7"}).json() == {"ids": [1, 2, 5, 6, 7]}
+    assert client.get("/api/ids", params={"text": "all"}).json() == {"ids": list(range(32))}
+    for text, says in (
+        ("5-2", "the range '5-2' runs backwards"),
+        ("40", "servo ID must be in 0..31, got 40"),
+        ("x", "'x' is not an ID (0..31) or a range of IDs"),
+        ("", "no IDs given"),
+    ):
+        answer = client.get("/api/ids", params={"text": text})
+        assert answer.status_code == 400 and says in answer.json()["error"], (text, answer.json())

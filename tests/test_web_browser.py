@@ -389,6 +389,28 @@ def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any
     shot(page, "many")
 
 
+def test_the_id_boxes_take_ids_as_the_command_line_does(page: Page, lines: Any) -> None:
+    # The page parsed IDs itself: "5-2" went as 2..5 (the command line refuses a range that runs backwards),
+    # "1 3" was refused (the command line takes it), "40" went to the server to be refused there.
+    sim = lines[0].sim
+    page.click("a[href='#many']")
+    page.check("[name=use-punch]")
+    page.fill("[name=value-punch]", "6")
+    for typed, says in (("3-1", "the range '3-1' runs backwards"), ("1-40", "the range '1-40' goes beyond 0..31")):
+        page.fill("#many-ids", typed)
+        page.click("#many-apply")
+        expect(page.locator("#message")).to_contain_text(says)
+        expect(page.locator("#many-results tbody tr")).to_have_count(0)
+    page.fill("#many-ids", "")
+    page.click("#many-apply")
+    expect(page.locator("#message")).to_have_text("name the servos to change (e.g. 1-17), or scan the line first")
+    assert sim.servo(1).eeprom.punch != 6 and sim.servo(3).eeprom.punch != 6  # nothing sent
+    page.fill("#many-ids", "1 3")
+    page.click("#many-apply")
+    expect(page.locator("#many-results tr[data-id='3']")).to_contain_text("verified")
+    assert sim.servo(1).eeprom.punch == 6 and sim.servo(3).eeprom.punch == 6
+
+
 def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) -> None:
     servo = lines[0].sim.servo(3)
     page.click("a[href='#live']")

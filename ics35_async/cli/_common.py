@@ -45,7 +45,6 @@ from ._params import (
     choice_option,
     every_id,
     json_option,
-    parse_id_list,
     seconds_option,
     yes_option,
 )
@@ -95,7 +94,6 @@ __all__ = [
     "nothing_answered",
     "NobodyAnswered",
     "out",
-    "parse_id_list",
     "require_port",
     "run",
     "run_loop",

@@ -13,21 +13,11 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol.wire import ALL_BAUDS as ALL_BAUDS  # (re-exported to the commands: _common)
 from ..protocol.wire import ALL_IDS
-from ..units import parse_ids, plain_count
+from ..units import parse_id_list, plain_count
 from ._numbers import Number
 from ._settings import Settings
 
 T = TypeVar("T")
-
-
-def parse_id_list(text: str) -> list[int]:
-    """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else (or nothing)."""
-    if text.strip().lower() in ("all", "*"):
-        return list(ALL_IDS)
-    ids = parse_ids(text, example=None)  # (the option's own hint shows one, with `all`)
-    if not ids:
-        raise InvalidArgument("no IDs given")
-    return ids
 
 
 def every_id(ids: Sequence[int] | None) -> bool:
@@ -148,7 +138,7 @@ def _is_number(word: str) -> bool:
 
 
 SERVO_ID = ServoIdType()
-ID_LIST = ListType("IDS", parse_id_list, " (IDs are 0..31; write e.g. 3, 1-12, 0,4,7 or all)")
+ID_LIST = ListType("IDS", parse_id_list, " (write e.g. 3, 1-12, 0,4,7 or all)")  # (every refusal names 0..31)
 BAUD_LIST = ListType("BAUDS", parse_baud_list)
 
 

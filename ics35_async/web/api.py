@@ -42,7 +42,7 @@ from ..policies.eeprom_backup import backup_file_name
 from ..protocol import MAX_ID
 from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
-from ..units import plain_count
+from ..units import parse_id_list, plain_count
 from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
@@ -315,6 +315,12 @@ async def many_apply(request: Request, session: LineSession) -> Any:
     return {"results": await session.apply_to_many(ids, data)}
 
 
+async def ids(request: Request, session: LineSession) -> Any:
+    """The IDs a box's text names, by the command line's rule (``units.parse_id_list``): the pages keep none of
+    their own."""
+    return {"ids": parse_id_list(request.query_params.get("text", ""))}
+
+
 async def many_fields(request: Request, session: LineSession) -> Any:
     """Each EEPROM field's unit, range and meaning, as the Servo page shows them (the Many servos page's table)."""
     return {"fields": field_rows(Eeprom.factory())}
@@ -559,6 +565,7 @@ ROUTES = [
     Route("/api/many/backup", endpoint(many_backup), methods=["POST"]),
     Route("/api/many/last", endpoint(many_last)),
     Route("/api/many/fields", endpoint(many_fields)),
+    Route("/api/ids", endpoint(ids)),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),

@@ -102,16 +102,10 @@ function wholeIn(box, what) {
   throw new Error(words);
 }
 
-function parseIds(text) {
-  const ids = new Set();
-  for (const part of text.split(",").map((s) => s.trim()).filter(Boolean)) {
-    if (part === "all") { for (let i = 0; i < 32; i++) ids.add(i); continue; }
-    const m = part.match(/^(\d+)(?:-(\d+))?$/);
-    if (!m) throw new Error(`${part} is not an ID or a range like 1-5`);
-    const a = +m[1], b = m[2] === undefined ? a : +m[2];
-    for (let i = Math.min(a, b); i <= Math.max(a, b); i++) ids.add(i);
-  }
-  return [...ids].sort((a, b) => a - b);
+// The IDs a box names ("1-12", "0,3 5-7", "all"), read by the server by the command line's rule; its refusal is
+// said (and thrown, as api() does, for the caller to stop at).
+async function idsIn(text) {
+  return (await api(`/api/ids?text=${encodeURIComponent(text)}`)).ids;
 }
 
 // ---------------------------------------------------------------- pages
@@ -302,7 +296,12 @@ async function scanLine() {
   const bauds = $("#scan-all-bauds").checked ? [115200, 625000, 1250000] : null;
   const text = $("#scan-ids").value.trim();
   let ids = null;  // every ID
-  try { if (text) ids = parseIds(text); } catch (e) { say(e.message); return; }
+  try {
+    if (text) ids = await idsIn(text);
+  } catch (e) {
+    $("#scan-summary").textContent = "nothing was scanned (the message above says why)";  // (as a refused scan)
+    return;
+  }
   $("#scan-btn").disabled = true;
   $("#scan-summary").textContent = "scanning…";
   try {
@@ -885,11 +884,18 @@ async function showManyRanges() {
   }
 }
 
+// The servos the Many servos page's box names, or undefined where it names none or they are refused (said why).
+async function manyIds(what) {
+  const text = $("#many-ids").value.trim();
+  if (!text) { say(`name the servos to ${what} (e.g. 1-17), or scan the line first`); return undefined; }
+  try { return await idsIn(text); } catch (e) { return undefined; }
+}
+
 async function applyMany() {
   // An earlier Apply's outcome goes first: it stood under this one's refusal as if this one had failed so.
   $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren(); $("#many-last").textContent = "";
-  let ids;
-  try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
+  const ids = await manyIds("change");
+  if (!ids) return;
   const changes = {};
   for (const name of PROFILE_FIELDS) {
     if (!document.querySelector(`[name=use-${name}]`).checked) continue;
@@ -940,9 +946,8 @@ function showManyResults(results) {
 // One file of every chosen servo's EEPROM. A servo that does not answer is left out, and the port lost part-way ends
 // the reading: the file holds what was read all the same, and the list below the button names the servos it lacks.
 async function backupMany() {
-  let ids;
-  try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
-  if (!ids.length) { say("name the servos to back up (e.g. 1-17), or scan the line first"); return; }
+  const ids = await manyIds("back up");
+  if (!ids) return;
   $("#many-backup-missing").replaceChildren();
   const doc = await api("/api/many/backup", { ids });
   // The same words for several servos (a lost port, a line of absent IDs) said once, naming them all.
@@ -964,7 +969,7 @@ const COLORS = ["#0b63c5", "#b3261e", "#1e7b34", "#8a5a00", "#6a1b9a", "#00838f"
 async function startLive() {
   let ids;
   const text = $("#live-ids").value.trim();
-  try { ids = text ? parseIds(text) : servosHere(); } catch (e) { say(e.message); return; }
+  try { ids = text ? await idsIn(text) : servosHere(); } catch (e) { return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
   state.history = []; state.liveIds = new Set();
   const started = await api("/api/live/start", { ids, free_ics35: $("#live-free").checked });
