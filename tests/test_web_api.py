@@ -248,7 +248,9 @@ def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: A
     assert refused.status_code >= 400 and "not a serial port" in refused.json()["error"]
     status = client.get("/api/status").json()
     assert status["connected"] and status["port"].startswith("sim://web-api-"), status
-    assert "not a serial port" in status["error"]  # (said on the Line page too)
+    # (said by the refused Connect's answer; kept, it stood later for why no line was open, when the line that stayed
+    # open was closed or stopped: "not connected: ... not a serial port", as if that were why)
+    assert status["error"] is None, status
     report = post(client, "/api/scan", {"bauds": [115200]}).json()
     assert [s["id"] for s in report["servos"]] == [1, 3]
 
@@ -268,7 +270,7 @@ def test_a_connect_to_a_missing_port_says_the_line_reconnects_only_once_open_in_
         " adapter in, then press Connect on the Line page"
     ), said
     assert "open it again" not in said and "bus" not in said, said
-    assert client.get("/api/status").json()["error"] == said  # (said on the Line page too)
+    assert client.get("/api/status").json()["error"] is None  # (the line open before stays: see above)
 
 
 def test_a_server_started_on_a_missing_port_says_so_in_the_pages_words(tmp_path: Any) -> None:

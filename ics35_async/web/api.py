@@ -46,7 +46,7 @@ from ..units import parse_id_list, plain_count
 from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
-from .session import PAGE_NAME_MAX, JogFreedServo, LineSession
+from .session import PAGE_NAME_MAX, JogFreedServo, LineSession, said_at_connect
 from .views import field_rows
 
 log = logging.getLogger("ics35_async.web")
@@ -200,7 +200,7 @@ async def connect(request: Request, session: LineSession) -> Any:
     try:
         return await session.connect(data.get("port"), data.get("baud"))
     except OSError as exc:  # (said with the hints the session found: a COM name off Windows, ...)
-        return error_response(exc, session.error)
+        return error_response(exc, said_at_connect(exc))
 
 
 async def scan(request: Request, session: LineSession) -> Any:

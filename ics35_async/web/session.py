@@ -116,6 +116,13 @@ MISSING_AT_CONNECT = (
     "the line reconnects by itself to a port lost once it is open, not to one missing as it opens: plug the adapter"
     " in, then press Connect on the Line page"
 )
+
+
+def said_at_connect(exc: BaseException) -> str:
+    """Why a Connect failed, in the page's words (a misnamed port's says what it meant: see said_on_the_page)."""
+    return said_on_the_page(exc, MISSING_AT_CONNECT)
+
+
 # A page's name for itself (see page_came), as long as it may be.
 PAGE_NAME_MAX = 64
 
@@ -341,7 +348,8 @@ class LineSession:
             try:
                 await bus.open()
             except (OSError, InvalidArgument) as exc:
-                self.error = said_on_the_page(exc, MISSING_AT_CONNECT)  # (a misnamed port's says what it meant)
+                if self.bus is None or not self.bus.is_open:  # (where a line stays open, its answer says it alone)
+                    self.error = said_at_connect(exc)
                 raise
             if self.config is not config:  # another port, open now: the old one goes
                 await self.disconnect()
