@@ -417,7 +417,7 @@ def test_several_servos_need_a_directory_or_one_file(cli: Any, sim_line: Any, tm
     sim, url = sim_line([1, 2])
     result = cli("--port", url, "eeprom", "dump", "1-2")
     assert result.code == ExitCode.USAGE
-    assert "-o DIR/ (one file per servo) or -o FILE.json (one file of them all)" in " ".join(result.err.split())
+    assert "-o DIR/ (one file per servo), -o FILE.json (one file of them all) or -o -" in " ".join(result.err.split())
     assert sim.transactions == 0
 
 
@@ -440,6 +440,31 @@ def test_several_servos_dumped_to_one_file_are_restored_from_it(cli: Any, sim_li
     result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
     assert result.code == 0, result.err
     assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [10, 20, 30]
+
+
+def test_dump_to_dash_writes_to_stdout_as_restore_reads_dash_from_stdin(
+    cli: Any, sim_line: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `-o -` wrote a file named "-" ("EEPROM of servo 1 saved to -"), and several servos' hint offered "-o -/ (one
+    # file per servo) or -o -.json", where `eeprom restore -` reads stdin.
+    monkeypatch.chdir(tmp_path)
+    sim, url = sim_line([1, 2])
+    for i in (1, 2):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i)
+    one = cli("--port", url, "eeprom", "dump", "1", "-o", "-")
+    assert one.code == 0 and json.loads(one.out)["servo_id"] == 1 and "saved to" not in one.err, one.err
+    both = cli("--port", url, "eeprom", "dump", "1-2", "-o", "-")
+    assert both.code == 0, both.err
+    doc = json.loads(both.out)
+    assert [(s["servo_id"], s["fields"]["speed"]) for s in doc["servos"]] == [(1, 10), (2, 20)]
+    assert not list(tmp_path.iterdir())  # (no file named "-", nor "-.json")
+    for i in (1, 2):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    restored = cli("--port", url, "eeprom", "restore", "-", "--yes", stdin=both.out)
+    assert restored.code == 0, restored.err
+    assert [sim.servo(i).eeprom.speed for i in (1, 2)] == [10, 20]
+    several = cli("--port", url, "eeprom", "dump", "1-2")
+    assert "-o - (them all on stdout)" in " ".join(several.err.split()), several.err
 
 
 def test_dump_checks_its_output_before_reading(cli: Any, sim_line: Any, tmp_path: Path) -> None:

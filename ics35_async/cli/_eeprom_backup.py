@@ -64,16 +64,20 @@ from ._runner import line_error
 
 
 def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[str, Path | None]:
-    """Where the dump goes ("stdout", "file", "dir" or "several": one file of several servos' backups), checked
+    """Where the dump goes ("stdout", "file", "dir" or "several": one document of several servos' backups), checked
     before the line is touched: for "dir", the directory (each servo's file in it named as
-    :func:`backup_file_name` names it), else the file (one servo's into a directory: its file there)."""
+    :func:`backup_file_name` names it), else the file (one servo's into a directory: its file there; None:
+    stdout)."""
     if output is None:
         if len(ids) > 1 and not as_table:
             raise click.BadParameter(
-                "several servos need -o DIR/ (one file per servo) or -o FILE.json (one file of them all)",
+                "several servos need -o DIR/ (one file per servo), -o FILE.json (one file of them all) or -o - "
+                "(them all on stdout)",
                 param_hint="IDS",
             )
         return "stdout", None
+    if output == "-":  # stdout, as `eeprom restore -` reads stdin (several servos: one document of them all)
+        return ("stdout" if len(ids) == 1 else "several"), None
     if empty_path(output):
         raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
     if names_directory(output):
@@ -153,7 +157,7 @@ def write_backup(path: Path, doc: dict[str, Any]) -> Path | None:
     "--output",
     "-o",
     metavar="FILE|DIR/",
-    help="Write to FILE (several servos: all in it), or one file per servo into DIR/.",
+    help="Write to FILE (several servos: all in it), or one file per servo into DIR/ (-: stdout).",
 )
 @click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
 # Not "as_json": JSON is this command's default output, not a choice made with the flag.
@@ -214,7 +218,6 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
         for i, image in images.items():
             out.print(eeprom_table(image, f"EEPROM of servo {i}"))
     elif kind == "several":
-        assert path is not None
         if images:  # (the servos asked for that are not in it named in the file too: see not_saved)
             doc = backups_document(
                 [dump_document(image, i, settings) for i, image in images.items()],
@@ -225,9 +228,12 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                     **(dict.fromkeys(read.unread, port_lost_why(read.unread[0])) if read.unread else {}),
                 },
             )
-            kept = write_backup(path, doc)
-            also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
-            say(f"EEPROMs of servos {id_ranges(images)} saved to {escape(str(path))}{also}")
+            if path is None:
+                emit_json(doc)
+            else:
+                kept = write_backup(path, doc)
+                also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
+                say(f"EEPROMs of servos {id_ranges(images)} saved to {escape(str(path))}{also}")
     else:
         for i, image in images.items():
             doc = dump_document(image, i, settings)
