@@ -163,6 +163,11 @@ def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:
     doc = result.json()
     assert [s["id"] for s in doc["servos"]] == [1]
     assert doc["garbled"] == [{"id": 3, "baud": 115200}]
+    # The table's summary (stdout) said only "1 servo(s) found ...: 1 at 115200 baud", the garbled ID on stderr alone.
+    shown = cli("--port", url, "scan", "--bauds", "115200", "--ids", "0-4")
+    assert shown.code == 0, shown.err
+    summary = " ".join(shown.out.split()).split("servo(s) found", 1)[1]
+    assert "ID 3 at 115200 baud answered garbled" in summary, shown.out
 
 
 def test_new_servos_chained_at_id_0_are_named_not_blamed_on_power(cli: Any, sim_line: Any) -> None:

@@ -206,7 +206,11 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         [f"{n} at {b} baud" for b, n in by_baud.items()]
         + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else [])
     )
-    say(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}", to=out)
+    # (a shared ID in the summary too: on stderr alone, a glance at the table missed two servos answering as one)
+    garbled = "".join(
+        f"; ID {i} at {baud} baud answered garbled (two servos sharing it?)" for baud, i, _ in report.garbled
+    )
+    say(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}{garbled}", to=out)
     if len(by_baud) > 1:
         most = max(by_baud, key=lambda b: by_baud[b])
         move = settings.command_line("--baud", "ITS_RATE", "eeprom", "set", "ID", f"baud_rate={most}", "--change-baud")
