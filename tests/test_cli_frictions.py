@@ -530,3 +530,21 @@ def test_a_bad_number_is_said_in_words_not_clicks_type_names(
         assert "<=" not in result.err and ".0 " not in result.err and shown in result.err, result.err
         bound = f"{high:g}" if beyond > (high or 0) else f"{low:g}"
         assert bound in result.err, result.err
+
+
+def test_the_port_named_as_an_example_is_one_of_this_systems(cli: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    # On Linux `ics35 --port '' scan` offered "e.g. '/dev/ttyUSB0' or 'COM3'" and the no-port refusal "(or COM3; ...)",
+    # and `--port COM3` is then refused there: "COM names are Windows' own".
+    from ics35_async.transports.platforms import example_port
+
+    assert (example_port("win32"), example_port("linux")) == ("COM3", "/dev/ttyUSB0")
+    assert example_port("darwin").startswith("/dev/cu.")
+    for platform in ("linux", "win32", "darwin"):
+        monkeypatch.setattr(sys, "platform", platform)
+        others = [o for o in ("COM3", "/dev/ttyUSB0", "/dev/cu.") if not example_port(platform).startswith(o)]
+        said = " ".join(cli("move", "1", "7500").err.split())
+        assert example_port(platform) in said and not [o for o in others if o in said], (platform, said)
+    # (the library's words, read on any machine: each system's name said as that system's)
+    said = " ".join(cli("--port", "", "scan").err.split())
+    assert "/dev/ttyUSB0 on Linux" in said and "COM3 on Windows" in said, said
+    assert "nothing was written" not in said, said  # (nothing is written by a scan: nothing was sent)

@@ -90,7 +90,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     if isinstance(exc, errors.InvalidArgument):
         if is_url(settings.port) and "cannot open" in text:
             return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
-        return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
+        return CliError(ExitCode.USAGE, f"{text} (nothing was sent)")
     if isinstance(exc, errors.ReplyError) and echo_setting_wrong(exc, settings.echo):
         if settings.echo:
             return CliError(

@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
+from ..transports.platforms import example_port
 from ._console import say_labelled
 from ._errors import NobodyAnswered, no_reply_error, nobody_at_this_rate, translate
 from ._loop import run_loop
@@ -55,7 +56,7 @@ def require_port(settings: Settings, action: str) -> None:
             ExitCode.USAGE,
             f"no --port given: refusing to {action} on the built-in simulator, which forgets it at once "
             "(nothing was sent)",
-            "on hardware: ics35 --port /dev/ttyUSB0 ...  (or COM3; or set ICS35_PORT)",
+            f"on hardware: ics35 --port {example_port()} ...  (or set ICS35_PORT)",
             "to try it on the simulator anyway: ics35 --port sim:// ...",
         )
 

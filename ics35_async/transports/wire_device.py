@@ -122,10 +122,11 @@ def _loaded(target: str) -> Callable[[str], object]:
     return cast(Callable[[str], object], getattr(importlib.import_module(module), name))
 
 
-# What a program that passed no port (an unset variable, an empty argument) is told to pass instead.
+# What a program that passed no port (an unset variable, an empty argument) is told to pass instead: each system's
+# name labelled (the library's words may be read on another machine; a bare "or COM3" misled a Linux user).
 _PORT_ADVICE = (
-    "pass the adapter's serial port, e.g. '/dev/ttyUSB0' or 'COM3' (`ics35 ports` lists them), or 'sim://' for"
-    " the built-in simulator"
+    "pass the adapter's serial port (`ics35 ports` lists them), e.g. /dev/ttyUSB0 on Linux, /dev/cu.usbserial-... on"
+    " macOS, COM3 on Windows; or 'sim://' for the built-in simulator"
 )
 
 
