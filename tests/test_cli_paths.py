@@ -194,3 +194,14 @@ def test_a_plot_path_ending_in_a_slash_is_named_a_directory(tmp_path: Path) -> N
     with pytest.raises(CliError) as caught:
         check_output_path(f"{tmp_path}/plots/", "--plot", {"png"})
     assert "names a directory; give a file name" in caught.value.message, caught.value.message
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a pty")
+def test_ctrl_c_while_a_backup_is_pasted_says_nothing_was_written(tmp_path: Path) -> None:
+    # It ended "interrupted" alone, where every other command's Ctrl-C says what was (not) done as an error line.
+    code, shown = typed_on_a_terminal(
+        ["--port", "sim://?ids=1", "eeprom", "restore", "1", "-", "--yes"], [("standard input", b"\x03")]
+    )
+    said = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.INTERRUPTED and "error: interrupted" in said and "nothing was written" in said, said

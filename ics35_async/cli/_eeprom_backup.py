@@ -298,7 +298,13 @@ def read_backups(source: str) -> Backups:
             if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
                 say("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
             stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
-            raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
+            try:
+                raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
+            except KeyboardInterrupt:  # (said as every command's Ctrl-C is: what was done, here nothing)
+                raise CliError(
+                    ExitCode.INTERRUPTED,
+                    "interrupted while the backup was read from standard input: nothing was written",
+                ) from None
             text = decode_user_text(raw, BACKUP_IS)
         else:
             text = read_user_text(source, BACKUP_IS)
