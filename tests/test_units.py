@@ -240,10 +240,13 @@ async def test_servo_and_stream_refuse_degrees_beyond_135() -> None:
                 stream.set_targets_degrees({1: -200.0})
 
 
-def test_id_lists_are_parsed_in_one_place_for_the_cli_and_the_simulator() -> None:
-    from ics35_async.cli._common import parse_id_list
+def test_id_lists_are_parsed_in_one_place_for_the_cli_the_simulator_and_the_configurator() -> None:
+    from ics35_async.cli import _params
     from ics35_async.sim import parse_ids as sim_parse_ids
-    from ics35_async.units import parse_ids
+    from ics35_async.units import parse_id_list, parse_ids
+    from ics35_async.web import api
+
+    assert _params.parse_id_list is api.parse_id_list is parse_id_list  # (the ID boxes' rule: GET /api/ids)
 
     assert sim_parse_ids is parse_ids
     assert parse_ids("5-7, 1 3,1") == [1, 3, 5, 6, 7] and parse_ids("2 - 4") == [2, 3, 4] and parse_ids("") == []
