@@ -19,9 +19,9 @@ all: test
 $(STAMP): pyproject.toml setup.py ics35_async/drivers/_burst.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does.
+	# (A path entry, so type checkers (mypy, pyright) find the package as Python does: package-dir in pyproject.toml.)
 	# ICS35_COMPILE=0: the engine stays plain Python here (compiled modules would shadow every edit; see setup.py).
-	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e '.[dev,web]' --config-settings editable_mode=compat
+	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e '.[dev,web]'
 	$(MAKE) --no-print-directory browser tools
 	touch $(STAMP)
 
@@ -48,12 +48,11 @@ tools:
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
 	else echo "note: the tests need$$missing: sudo apt-get install$$missing" >&2; fi
 
-# The same editable mode as the development install above: the demo's install replaces it in the same
-# venv, and an import-hook install would then hide the package from the type checkers and the tests.
+# The same editable install as the development one above (a path entry): the demo's replaces it in the same venv.
 $(DEMO_STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e . --config-settings editable_mode=compat
+	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e .
 	touch $(DEMO_STAMP)
 
 demo: $(DEMO_STAMP)

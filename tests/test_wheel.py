@@ -113,3 +113,19 @@ def test_wheel_installs_into_a_clean_virtualenv_and_runs(dist: Path, tmp_path: P
     example = _run(bin_dir / "python", script, cwd=tmp_path)
     assert example.returncode == 0, example.stderr
     assert "servos: [1, 2, 3]" in example.stdout
+
+
+def test_the_development_install_is_a_path_entry_type_checkers_follow() -> None:
+    # An editable install of a flat layout was an import hook (a finder type checkers cannot see) unless asked for
+    # setuptools' transitional compat mode, which warned at every `make demo`: package-dir makes it a path entry.
+    from importlib import metadata
+
+    from ics35_async.extras import installed_from
+
+    kind, clone = installed_from()
+    assert kind == "editable" and clone is not None, kind  # (make .venv/.installed)
+    files = [str(f) for f in metadata.distribution("ics35_async").files or ()]
+    assert not [f for f in files if "finder" in f], files
+    (pth,) = [f for f in files if f.endswith(".pth")]
+    entries = metadata.distribution("ics35_async").locate_file(pth).read_text().split()
+    assert [Path(e).resolve() for e in entries] == [clone.resolve()], entries
