@@ -523,6 +523,8 @@ def test_a_bad_number_is_said_in_words_not_clicks_type_names(
     assert result.code == ExitCode.USAGE, result.err
     said = "not a whole number" if whole else "not a number"
     assert f"'x' is {said}" in result.err and "range" not in result.err, result.err
+    result = cli(*path, option, "nan")  # (float() reads it, and it compares as within every range)
+    assert result.code == ExitCode.USAGE and f"'nan' is {said}" in result.err, result.err
     for beyond in ([high + 1] if high is not None else []) + ([low - 1] if low is not None else []):
         shown = f"{beyond:g}"
         result = cli(*path, option, shown)

@@ -5,6 +5,7 @@ Light (click only): the line options every command shares use them, and ``ics35 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import click
@@ -24,6 +25,8 @@ class Number(click.FloatRange):
             try:
                 number = int(str(value).strip()) if self.WHOLE else float(str(value).strip())
             except ValueError:
+                number = math.nan
+            if math.isnan(number):  # (float("nan") compares as within every range)
                 self.fail(f"{value!r} is not a {'whole ' if self.WHOLE else ''}number", param, ctx)
         low, high = self.min, self.max
         below = low is not None and (number <= low if self.min_open else number < low)
