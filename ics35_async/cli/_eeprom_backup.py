@@ -295,10 +295,10 @@ def read_backups(source: str) -> Backups:
     """One file's backups, checked whole (BadParameter, naming the file, on anything wrong)."""
     try:
         if source == "-":
-            if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
-                say("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
             stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
-            try:
+            try:  # (from the words on: a Ctrl-C pressed as they show lands before the read begins)
+                if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
+                    say("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
                 raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
             except KeyboardInterrupt:  # (said as every command's Ctrl-C is: what was done, here nothing)
                 raise CliError(
