@@ -14,12 +14,10 @@ import click
 import pytest
 
 from ics35_async.cli import ExitCode
+from ics35_async.cli._runner import simulator_note
 from ics35_async.robot import load_description, open_robot
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.console import LineConsole
-
-SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
-
 
 _WITH_JSON = [
     ["get", "1", "speed"],
@@ -44,7 +42,7 @@ def test_a_command_without_port_names_the_simulator_once_on_stderr(cli: Any, com
     # --port given)"), which a pipe (`ics35 get 1 speed | cut -d' ' -f3`) took for a result.
     result = cli(*command, *(["--json"] if as_json and command[:2] != ["eeprom", "dump"] else []))
     assert result.code == 0, result.err
-    assert result.err.splitlines().count(SIMULATOR_NOTE) == 1, result.err
+    assert result.err.splitlines().count(simulator_note()) == 1, result.err
     assert result.err.count("no --port") == 1, result.err
     assert "no --port" not in result.out and "simulated servos" not in result.out, result.out
     if as_json or command[:2] == ["eeprom", "dump"]:
@@ -544,8 +542,9 @@ def test_the_port_named_as_an_example_is_one_of_this_systems(cli: Any, monkeypat
     for platform in ("linux", "win32", "darwin"):
         monkeypatch.setattr(sys, "platform", platform)
         others = [o for o in ("COM3", "/dev/ttyUSB0", "/dev/cu.") if not example_port(platform).startswith(o)]
-        said = " ".join(cli("move", "1", "7500").err.split())
-        assert example_port(platform) in said and not [o for o in others if o in said], (platform, said)
+        for args in (["move", "1", "7500"], ["info", "1"]):  # (a refusal; the simulator's note)
+            said = " ".join(cli(*args).err.split())
+            assert example_port(platform) in said and not [o for o in others if o in said], (platform, said)
     # (the library's words, read on any machine: each system's name said as that system's)
     said = " ".join(cli("--port", "", "scan").err.split())
     assert "/dev/ttyUSB0 on Linux" in said and "COM3 on Windows" in said, said

@@ -16,7 +16,7 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.cli._errors import NO_REPLY_HINTS
-from ics35_async.cli._runner import SIMULATOR_NOTE
+from ics35_async.cli._runner import simulator_note
 from ics35_async.policies import trying_rate
 from ics35_async.policies.eeprom_backup import backup_document, backups_document
 from ics35_async.sim import VirtualServo
@@ -95,7 +95,7 @@ def test_a_note_wraps_at_words_under_its_text() -> None:
     code, written = typed_on_a_terminal(["get", "1", "speed"], [], columns=50, env={"ICS35_PORT": ""})
     screen = screen_of(written, width=50)
     assert code == 0, screen
-    assert said(screen, "note:") == [SIMULATOR_NOTE.removeprefix("note: ")], screen
+    assert said(screen, "note:") == [simulator_note().removeprefix("note: ")], screen
 
 
 def test_a_restores_note_wraps_at_words_under_its_text(tmp_path: Path) -> None:

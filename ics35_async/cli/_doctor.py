@@ -21,7 +21,7 @@ from ..drivers.fine_timer import TIMER_NAME, fine_deadlines
 from ..errors import IcsError
 from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
-from ..transports.platforms import misnamed_port_hints
+from ..transports.platforms import example_port, misnamed_port_hints
 from ._common import (
     CliError,
     ExitCode,
@@ -116,18 +116,20 @@ def measure(
     return run(settings, body)
 
 
-SIMULATOR_NOTE = (
-    "[bold]the simulator[/bold]: the machine's adapters, drivers and port rights are not checked (they mean "
-    "nothing for it); its round trips are the simulator's, not hardware's (for hardware: ics35 doctor --port "
-    "/dev/ttyUSB0)"
-)
+def simulator_note() -> str:
+    """What doctor says of the simulator it was given (this system's port named as the example)."""
+    return (
+        "[bold]the simulator[/bold]: the machine's adapters, drivers and port rights are not checked (they mean "
+        "nothing for it); its round trips are the simulator's, not hardware's (for hardware: ics35 doctor --port "
+        f"{example_port()})"
+    )
 
 
 def print_report(
     system: SystemReport, line: LineReport | None, findings: list[Finding], simulated: bool = False
 ) -> None:
     if simulated:
-        say(SIMULATOR_NOTE, to=out)
+        say(simulator_note(), to=out)
     elif system.ports:
         say("[bold]ports[/bold]", to=out)
         for p in system.ports:

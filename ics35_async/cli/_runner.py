@@ -22,7 +22,10 @@ T = TypeVar("T")
 
 _advised: set[str] = set()
 
-SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
+
+def simulator_note() -> str:
+    """What a command run without --port says first (this system's port named as the example)."""
+    return f"note: no --port given: this is the built-in simulator (for hardware: --port {example_port()})"
 
 
 def advise(port: str) -> None:
@@ -40,7 +43,7 @@ def note_simulator(settings: Settings) -> None:
     (``ics35 get 1 speed | cut ...``); a JSON result says it as data instead (``"simulated": true``)."""
     if settings.port_defaulted:
         settings.port_defaulted = False
-        label, text = SIMULATOR_NOTE.split(" ", 1)
+        label, text = simulator_note().split(" ", 1)
         say_labelled(f"[dim]{label}[/dim]", f"[dim]{escape(text)}[/dim]")
         settings.simulated = True
 

@@ -10,6 +10,7 @@ from rich.markup import escape
 from ..errors import InvalidArgument
 from ..extras import extra_hint
 from ..terminal import clear_after_ctrl_c
+from ..transports.platforms import example_port
 from ._common import CliError, ExitCode, settings_of
 from ._console import say, say_labelled
 from ._loop import loop_factory, quiet_executor_shutdown
@@ -95,7 +96,8 @@ def web(
     elif settings.port_defaulted:
         say_labelled(
             "[dim]note:[/dim]",
-            "[dim]no --port given: the page serves the built-in simulator (for hardware: --port /dev/ttyUSB0)[/dim]",
+            "[dim]no --port given: the page serves the built-in simulator "
+            f"(for hardware: --port {example_port()})[/dim]",
         )
     config = LineConfig(
         port=settings.port_to_open,
