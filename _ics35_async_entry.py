@@ -57,7 +57,7 @@ def _interrupted() -> NoReturn:
     # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
     # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
     _clear_echoed_ctrl_c()
-    sys.stderr.write("interrupted\n")
+    sys.stderr.write("error: interrupted\n")
     sys.exit(INTERRUPTED)
 
 

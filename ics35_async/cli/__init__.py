@@ -239,7 +239,7 @@ def _interrupted(word: str, *, newline_on_stderr: bool = False) -> NoReturn:
         from ..terminal import clear_echoed_ctrl_c
 
         clear_echoed_ctrl_c(newline_on_stderr=newline_on_stderr)
-    click.echo(stopped.message, err=True)
+    click.echo(f"error: {stopped.message}", err=True)  # (as every failure is said; plain: no console to load now)
     sys.exit(int(stopped.code))
 
 
