@@ -291,6 +291,8 @@ def test_a_refused_connect_answers_with_the_hints_the_page_shows(serve: Any) -> 
     for port, hint in (("COM3", "COM names are Windows' own"), ("ttyUSB0", "/dev/ttyUSB0")):
         refused = post(client, "/api/connect", {"port": port})
         assert refused.status_code == 503 and hint in refused.json()["error"], refused.json()
+        # (a misnamed port is no adapter to plug in: the words for one missing as it opens were added to it)
+        assert "plug the adapter in" not in refused.json()["error"], refused.json()
 
 
 @pytest.mark.pty

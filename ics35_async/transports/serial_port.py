@@ -121,6 +121,12 @@ def _check_not_left_by_a_killed_simulator(port: str) -> None:
     )
 
 
+def _unplugged(exc: PortNotFound) -> PortNotFound:
+    """``exc``, marked as a port whose device may yet be plugged in (see PortNotFound.unplugged)."""
+    exc.unplugged = True
+    return exc
+
+
 def translate_open_error(port: str, exc: Exception) -> Exception:
     """Turn what pyserial raised into an error that says what to do."""
     code, winerror = _error_code(exc)
@@ -133,17 +139,21 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
                 f"that stopped? start it again: ics35 sim --link {port})",
             )
         if dangling is not None:  # (a udev link whose adapter is gone)
-            return PortNotFound(
-                errno.ENOENT,
-                f"no serial port at {port!r}: it is a link to {dangling}, which is not there (an adapter unplugged; "
-                f"{port_names_hint()})",
+            return _unplugged(
+                PortNotFound(
+                    errno.ENOENT,
+                    f"no serial port at {port!r}: it is a link to {dangling}, which is not there (an adapter "
+                    f"unplugged; {port_names_hint()})",
+                )
             )
         misnamed = misnamed_port_hints(port)
         if misnamed:  # (sim:/?ids=1-3, ttyUSB0: the cable is not what to check)
             return PortNotFound(errno.ENOENT, f"no serial port at {port!r}: {'; '.join(misnamed)}")
-        return PortNotFound(
-            errno.ENOENT,
-            f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",
+        return _unplugged(
+            PortNotFound(
+                errno.ENOENT,
+                f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",
+            )
         )
     if winerror == _WINERROR_ACCESS_DENIED:
         return PortBusy(errno.EBUSY, f"{port!r} is in use by another program (Windows says 'access denied' for that)")
