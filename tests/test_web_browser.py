@@ -341,6 +341,26 @@ def test_jog_moves_the_servo_only_with_motion_enabled(page: Page, lines: Any) ->
     expect(page.locator("#message")).to_contain_text("free")
 
 
+def test_a_jog_past_the_servos_pulse_limit_stops_there_and_says_why(page: Page, lines: Any) -> None:
+    # The page kept the target at the limit without a word: +100 at the limit did nothing, and nothing said why.
+    sim = lines[0].sim
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(pulse_limit_high=8350)
+    sim.servo(1).move_by_hand(8200)
+    open_servo(page, 1, speed=sim.servo(1).eeprom.speed)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-target")).to_have_text("8200")
+    page.click("#jog-plus")
+    expect(page.locator("#jog-target")).to_have_text("8300")
+    expect(page.locator("#message")).not_to_contain_text("pulse limit")
+    for wanted in (8400, 8450):  # (the second from the limit's 8350)
+        page.click("#jog-plus")
+        expect(page.locator("#jog-target")).to_have_text("8350")
+        expect(page.locator("#message")).to_contain_text(f"{wanted} is past servo 1's pulse limit 8350 (its EEPROM)")
+        until(lambda: sim.servo(1).target == 8350, "the jog's command never reached servo 1")
+    page.click("#free-btn")
+    expect(page.locator("#message")).to_contain_text("free")
+
+
 def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page: Page, lines: Any) -> None:
     two, lone = lines
     page.click("a[href='#id']")
