@@ -459,6 +459,24 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
     page.click("#live-stop")
 
 
+def test_a_plot_started_again_after_a_pause_is_not_frozen(page: Page, lines: Any) -> None:
+    # Pause, Stop, Start: the new plot stayed frozen on the old stream's legend (the pause outlived the stream).
+    servo = lines[0].sim.servo(3)
+    page.click("a[href='#live']")
+    page.fill("#live-ids", "3")
+    page.check("#live-free")
+    page.click("#live-start")
+    servo.move_by_hand(8000)
+    expect(page.locator("#legend span[data-id='3']")).to_have_text("■ 3: 8000")
+    page.click("#live-pause")
+    page.click("#live-stop")
+    page.click("#live-start")
+    expect(page.locator("#live-pause")).to_have_text("Pause")
+    servo.move_by_hand(9000)
+    expect(page.locator("#legend span[data-id='3']")).to_have_text("■ 3: 9000")
+    page.click("#live-stop")
+
+
 def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     page.click("a[href='#traffic']")  # recording starts with the page, and goes on while away from it
     base = page.url.split("/#")[0]

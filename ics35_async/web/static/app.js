@@ -974,6 +974,7 @@ async function startLive() {
   try { ids = text ? await idsIn(text) : servosHere(); } catch (e) { return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
   state.history = []; state.liveIds = new Set();
+  state.livePaused = false; $("#live-pause").textContent = "Pause";  // (a new plot: an old one's pause outlived it)
   const started = await api("/api/live/start", { ids, free_ics35: $("#live-free").checked });
   const kept = started.kept_held || [];  // (not freed: a joint of a standing robot stays up)
   const notes = [];
