@@ -82,12 +82,6 @@ def web(
         token = load_token(token_file)
     except InvalidArgument as exc:
         raise click.BadParameter(str(exc), param_hint="--listen" if "listen" in str(exc) else "--token-file") from None
-    if not where.loopback:
-        say_labelled(
-            "[yellow]warning:[/yellow]",
-            f"serving on {escape(where.host)}: any machine that can reach it and "
-            "knows the token can move these servos; keep the URL private",
-        )
     line_from_robot = settings.port_defaulted and robot_file is not None
     if line_from_robot:
         say_labelled(

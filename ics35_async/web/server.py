@@ -439,6 +439,11 @@ def serve(
         else RobotSession(robot_file, robot_options, robot_start_pose, ask_before_freeing=robot_ask_before_freeing)
     )
     sock = bind(listen)
+    if not listen.loopback and warn is not None:  # (once bound: not before a refusal to listen there)
+        warn(
+            f"serving on {listen.host}: any machine that can reach it and knows the token can move these servos; "
+            "keep the URL private"
+        )
     app = _Answering(
         create_app(
             LineSession(config),
