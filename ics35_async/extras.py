@@ -24,10 +24,12 @@ Installed = tuple[Literal["editable", "package", "unknown"], Path | None]
 def installed_from() -> Installed:
     """``("editable", the clone)`` for ``pip install -e``, ``("package", None)`` for a wheel or sdist, and
     ``("unknown", None)`` when no installed distribution is found (the code run from a source tree)."""
-    try:
-        recorded = metadata.distribution(DISTRIBUTION).read_text("direct_url.json")
-    except metadata.PackageNotFoundError:
+    # Each copy on the path: an installation's record first (a build's ics35_async.egg-info in a checkout, first on
+    # the path when the code runs from there, records no installation).
+    found = [d.read_text("direct_url.json") for d in metadata.distributions(name=DISTRIBUTION)]
+    if not found:
         return "unknown", None
+    recorded = next((r for r in found if r), None)
     try:
         direct = json.loads(recorded) if recorded else {}
     except ValueError:

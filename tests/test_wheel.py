@@ -118,14 +118,34 @@ def test_wheel_installs_into_a_clean_virtualenv_and_runs(dist: Path, tmp_path: P
 def test_the_development_install_is_a_path_entry_type_checkers_follow() -> None:
     # An editable install of a flat layout was an import hook (a finder type checkers cannot see) unless asked for
     # setuptools' transitional compat mode, which warned at every `make demo`: package-dir makes it a path entry.
+    import json
     from importlib import metadata
 
-    from ics35_async.extras import installed_from
-
-    kind, clone = installed_from()
-    assert kind == "editable" and clone is not None, kind  # (make .venv/.installed)
-    files = [str(f) for f in metadata.distribution("ics35_async").files or ()]
+    # (the installed one: the build's own ics35_async.egg-info in the checkout, first on a test's path, has no
+    # record of how it was installed)
+    (installed,) = [d for d in metadata.distributions(name="ics35_async") if d.read_text("direct_url.json") is not None]
+    direct = json.loads(installed.read_text("direct_url.json") or "{}")
+    assert direct.get("dir_info", {}).get("editable"), direct  # (make .venv/.installed)
+    clone = Path(direct["url"].removeprefix("file://"))
+    files = [str(f) for f in installed.files or ()]
     assert not [f for f in files if "finder" in f], files
     (pth,) = [f for f in files if f.endswith(".pth")]
-    entries = metadata.distribution("ics35_async").locate_file(pth).read_text().split()
+    entries = Path(str(installed.locate_file(pth))).read_text().split()
     assert [Path(e).resolve() for e in entries] == [clone.resolve()], entries
+
+
+def test_an_editable_install_is_told_as_one_with_a_build_record_first_on_the_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The build's ics35_async.egg-info in a checkout, first on the path when the CLI runs from it (`python -m
+    # ics35_async.cli` there, a test), was taken for the installation: "a package", and `ics35 web` without its extra
+    # said to fetch a second copy from the package index instead of `pip install -e 'CLONE[web]'`.
+    from ics35_async.extras import installed_from
+
+    told = installed_from()
+    assert told[0] == "editable", told  # (make .venv/.installed)
+    record = tmp_path / "ics35_async.egg-info"
+    record.mkdir()
+    (record / "PKG-INFO").write_text("Metadata-Version: 2.1\nName: ics35_async\nVersion: 0.1.0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert installed_from() == told
