@@ -296,6 +296,19 @@ def test_a_refused_connect_answers_with_the_hints_the_page_shows(serve: Any) -> 
 
 
 @pytest.mark.pty
+def test_the_line_pages_port_notes_say_a_pty_is_one_not_a_missing_adapter() -> None:
+    # `ics35 ports --port PTY` said what the pty is; the page said "no Kondo adapter ... sudo modprobe ftdi_sio".
+    from ics35_async.sim import serving
+
+    with serving(["--ids", "2", "--fast"]) as pty:
+        app = create_app(LineSession(LineConfig(port=pty)), TOKEN)
+        with TestClient(app, base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            notes = client.get("/api/ports").json()["notes"]
+    assert len(notes) == 1 and "pseudo-terminal" in notes[0] and "modprobe" not in notes[0], notes
+
+
+@pytest.mark.pty
 def test_the_open_port_under_another_name_is_reopened_not_refused_as_busy(tmp_path: Any) -> None:
     # /dev/serial/by-id/... for /dev/ttyUSB0: the same device (it cannot be open twice), so it closes first.
     from ics35_async.sim import serving

@@ -189,7 +189,9 @@ async def ports(request: Request, session: LineSession) -> Any:
     except Exception as exc:  # pyserial's platform backend failed: say so
         return {"ports": [], "notes": [f"cannot list serial ports: {exc}"]}
     # (worded as ics35 ports and ics35 doctor word it)
-    notes = missing_adapter_notes(found, kondo_usb_without_port(), linux=sys.platform.startswith("linux"))
+    notes = missing_adapter_notes(
+        found, kondo_usb_without_port(), linux=sys.platform.startswith("linux"), port=session.config.port
+    )
     return {"ports": [p.to_dict() for p in found], "notes": notes}
 
 
