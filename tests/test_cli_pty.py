@@ -1233,14 +1233,14 @@ main(sys.argv[1:])
 
 
 def test_ctrl_c_as_web_loads_leaves_no_echoed_ctrl_c_above_its_last_words() -> None:
-    # click, taking the KeyboardInterrupt, writes a newline to stderr before the command line says "interrupted":
+    # click, taking the KeyboardInterrupt, writes a newline to stderr before the command line says it was interrupted:
     # the ^C the terminal echoed was left on a line of its own above it, which the clearing of the line that
     # every other stop does (the line below, empty) did not reach.
     code, written = typed_on_a_terminal(["web", "--no-browser"], [("loading", b"\x03")], script=_WEB_LOADING)
     screen = [line for line in screen_of(written) if line]
     said = "\n".join(screen)
     assert code == 130 and "Traceback" not in written, said
-    assert screen[-2:] == ["loading", "interrupted"], said
+    assert screen[-2:] == ["loading", "error: interrupted"], said
     assert "^C" in written  # (the terminal echoed it: the scene)
 
 
