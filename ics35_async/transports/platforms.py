@@ -92,7 +92,7 @@ def _for_platform(texts: dict[str, str], platform: str | None) -> str:
     return texts.get(platform, texts[""])
 
 
-_EXAMPLE_PORT = {"win32": "COM3", "darwin": "/dev/cu.usbserial-A10K1234", "": "/dev/ttyUSB0"}
+_EXAMPLE_PORT = {"win32": "COM3", "darwin": "/dev/cu.usbserial-...", "": "/dev/ttyUSB0"}  # (as --help writes them)
 
 
 def example_port(platform: str | None = None) -> str:

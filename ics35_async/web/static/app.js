@@ -795,7 +795,9 @@ async function jog(position) {
   const [low, high] = state.limits, wanted = Math.round(position);
   position = Math.max(low, Math.min(high, wanted));
   // (stopped at the limit with a word: +100 there did nothing, and nothing said why)
-  if (position !== wanted) say(`${wanted} is past servo ${servoId()}'s pulse limit ${position} (its EEPROM): the target stops there`, "info");
+  if (position !== wanted) {
+    say(`${wanted} is past servo ${servoId()}'s pulse limit ${position} (its EEPROM): the target stops there`, "info");
+  }
   const mine = (state.jogs = (state.jogs ?? 0) + 1);
   showTarget(position);  // at once, so a drag or clicks in a row feel direct; taken back if refused
   let reply;
