@@ -779,6 +779,35 @@ def test_a_watched_joint_whose_servo_stopped_answering_altogether_is_not_said_bl
     assert not said(), said()
 
 
+def test_a_watched_joint_whose_servo_is_plugged_back_in_is_not_said_blind(caplog: pytest.LogCaptureFixture) -> None:
+    # A servo unplugged until the stream took it offline, then plugged back in: as it answered again, the watch said
+    # "its temperature and current did not read 3 times in a row (its servo still answers its position commands)",
+    # counting the reads that failed as it went, while the views showed it reading well.
+    rig = make_rig({"max_temperature_c": 70, "max_current": 40, "telemetry_per_cycle": 2})
+
+    def said() -> list[str]:
+        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            # (offline after 20 failed cycles: its reads fail twice before, as on a line with an adapter's latency)
+            async with open_robot(rig.description, start_pose={"knee": 0.0}, **{**FAST, "offline_after": 20}) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
+                servo = rig.lower.remove_servo(2)
+                await frames_until(robot, lambda: "knee" in robot.latest.offline)
+                rig.lower.add_device(servo)
+                await frames_until(robot, lambda: "knee" not in robot.latest.offline)
+                reads = robot.telemetry["knee"].reads
+                await frames_until(robot, lambda: robot.telemetry["knee"].reads >= reads + 3)  # (read well again)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert not said(), said()
+
+
 def test_telemetry_that_cannot_be_read_is_not_said_where_no_limit_needs_it(caplog: pytest.LogCaptureFixture) -> None:
     rig = make_rig()  # no [safety] limits: the reads only feed the views, which show "-" by themselves
 

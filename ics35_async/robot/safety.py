@@ -125,11 +125,16 @@ class SafetyWatch:
 
     def forget(self, joints: Iterable[str]) -> None:
         """Drop the readings of ``joints``, whose servo went offline or whose line lost its port: it may come back
-        restarted, cooler or hotter, and what was read before is not its own now (its counts stay)."""
+        restarted, cooler or hotter, and what was read before is not its own now (its counts stay).  The reads that
+        failed as it went end with it: back, a stretch of failed reads to say is counted from then (they were said
+        "did not read 20 times in a row (its servo still answers its position commands)" as it answered again)."""
         for name in joints:
             seen = self.telemetry.get(name)
             if seen is not None:
                 seen.temperature_c = seen.current = None
+                seen.failed_in_row = 0
+            self._blind.discard(name)
+            self._said_blind.discard(name)
 
     async def run(self, robot: WatchedRobot) -> None:
         if not self.spec.telemetry_per_cycle:
