@@ -203,7 +203,13 @@ def test_play_names_a_baud_rate_given_alone_as_not_used(cli: Any, rig: tuple[Rig
     # together, and only when --port was given), and `--port` alone was said as "--port and --baud".
     _, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
-    for given, unsaid in ((["--baud", "625000"], "--port"), (["--port", "/dev/ttyUSB7"], "--baud")):
+    # (and a value that is the option's default, given all the same: `--baud 115200` went unsaid)
+    for given, unsaid in (
+        (["--baud", "625000"], "--port"),
+        (["--port", "/dev/ttyUSB7"], "--baud"),
+        (["--baud", "115200"], "--port"),
+        (["--retries", "1"], "--baud"),
+    ):
         result = cli("play", str(robot_file), str(motion), *given)
         assert result.code == 0, result.err
         note = next((line for line in result.err.splitlines() if "not used" in line), "")

@@ -136,6 +136,12 @@ def settings_from(ctx: click.Context, values: dict[str, Any]) -> Settings:
         direction=values["direction"],
         verbose=values["verbose"],
         port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
+        given=frozenset(
+            option.name
+            for option in LINE_OPTIONS
+            if ctx.get_parameter_source(option.name)
+            not in (None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+        ),
         from_environment=tuple(
             f"{option.group_kwargs['envvar']}={values[option.name]}"
             for option in LINE_OPTIONS
@@ -154,6 +160,7 @@ def _store(name: str) -> Callable[[click.Context, click.Parameter, Any], None]:
         settings = ctx.find_object(Settings)
         if settings is None:
             return
+        settings.given |= {name}
         if name == "port":
             settings.port = value
             settings.port_defaulted = False

@@ -154,10 +154,10 @@ def note_ports(settings: Settings, robot_file: str) -> None:
         option
         for option, given in (
             ("--port", not settings.port_defaulted),
-            ("--baud", settings.baud != Settings.baud),
-            ("--retries", settings.retries != Settings.retries),
+            ("--baud", "baud" in settings.given),  # (given, whatever its value: `--baud 115200` too)
+            ("--retries", "retries" in settings.given),
             ("--no-echo", not settings.echo),
-            ("--direction", settings.direction != Settings.direction),
+            ("--direction", "direction" in settings.given),
         )
         if given
     ]

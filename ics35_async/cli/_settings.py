@@ -104,6 +104,9 @@ class Settings:
     write_action: str | None = None  # a command that changes a servo: what it does (see _runner.guard_writes)
     json_output: bool = False  # --json given before the command
     from_environment: tuple[str, ...] = ()  # "ICS35_PORT=/dev/ttyUSB0": line options the environment set
+    # The line options given (on the command line or by the environment), by name ("baud", "no_echo"), whatever
+    # their value: `--baud 115200` is given as much as `--baud 625000`, though it is the default.
+    given: frozenset[str] = frozenset()
     _sim_name: str | None = field(default=None, init=False, repr=False)
     # Every named URL url gave: an error may be said once release_sim has closed its line (see as_given)
     _sim_urls: list[str] = field(default_factory=list, init=False, repr=False)
