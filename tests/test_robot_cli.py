@@ -425,10 +425,11 @@ def captures(sims: Rig, joints: list[str], *changes: Callable[[TaughtTimes], obj
         async with open_robot(sims.description, **FAST) as robot:
             screen = Screen(Table, str)
             times = TaughtTimes(1.0)
-            await capture(robot, joints, times, keyframes, screen)
+            at_limits: dict[str, list[tuple[int, float, float]]] = {}
+            await capture(robot, joints, times, keyframes, screen, at_limits)
             for change in changes:
                 change(times)
-                await capture(robot, joints, times, keyframes, screen)
+                await capture(robot, joints, times, keyframes, screen, at_limits)
 
     anyio.run(main)
     return keyframes
@@ -480,6 +481,7 @@ def test_teach_says_how_far_past_its_limit_a_joint_stands_to_the_count(
     assert keyframes[0].pose == {"hip": 30.0}  # recorded at the limit
     said = " ".join(capsys.readouterr().err.split())
     assert f"joint hip is at {standing:+.5f}".rstrip("0") + ", beyond its limits -30..30" in said, said
+    assert "warning: joint hip recorded at its limit 30 in pose 1 (it stood 0.2 past)" in said, said
 
 
 @pytest.mark.parametrize("command", ["play", "calibrate"])

@@ -312,15 +312,20 @@ def test_teach_on_a_terminal_shows_its_warning_about_a_pose_beyond_the_limits(po
         assert time.monotonic() < deadline, moved.stdout
         time.sleep(0.05)
     taught = tmp_path / "taught.json"
+    # (A second pose after it: the first's warning, one line of the live view, was gone at the next capture's.)
     code, screen = run_on_a_terminal(
         [*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--joints", "b"],
-        [("Enter: capture", "\n"), ("pose 1 at", "q\n")],
+        [("Enter: capture", "\n"), ("pose 1 at", "\n"), ("pose 2 at", "q\n")],
     )
     assert code == 0, "\n".join(screen)
-    assert json.loads(taught.read_text())["keyframes"][0]["pose"] == {"b": -90.0}
+    assert [k["pose"] for k in json.loads(taught.read_text())["keyframes"]] == [{"b": -90.0}, {"b": -90.0}]
     text = " ".join(" ".join(screen).split())
     # (Where it stands to the count: the count nearest 100 degrees.)
     assert re.search(r"warning: joint b is at -100\.0\d*, beyond its limits -90\.\.90: recorded at the limit", text), (
+        "\n".join(screen)
+    )
+    # (kept on the screen whatever comes after: which poses, and how far past the limit the joint stood)
+    assert "warning: joint b recorded at its limit -90 in poses 1, 2 (it stood up to 10.0 past)" in text, (
         "\n".join(screen)
     )
     assert sum(f"teach: {taught}" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once

@@ -243,6 +243,7 @@ def teach(
             def table() -> Table:
                 return joint_table(robot, title.whole, names, lost=bool(lost))
 
+            at_limits: dict[str, list[tuple[int, float, float]]] = {}
             with Screen(table, summary, title) as screen:
 
                 async def capture_loop() -> None:
@@ -256,7 +257,7 @@ def teach(
                         if line is None or line.strip().lower() in QUIT:
                             return
                         try:
-                            await capture(robot, names, times, keyframes, screen)
+                            await capture(robot, names, times, keyframes, screen, at_limits)
                         except IcsError:
                             lost.append(True)  # the lines ended while the pose was read
                             screen.update(force=True)
@@ -338,9 +339,15 @@ class TaughtTimes:
 
 
 async def capture(
-    robot: Robot, names: list[str], times: TaughtTimes, keyframes: list[Keyframe], screen: Screen
+    robot: Robot,
+    names: list[str],
+    times: TaughtTimes,
+    keyframes: list[Keyframe],
+    screen: Screen,
+    at_limits: dict[str, list[tuple[int, float, float]]],
 ) -> None:
-    """Read the pose and add it as a keyframe, timed by ``times``."""
+    """Read the pose and add it as a keyframe, timed by ``times``; ``at_limits``: each joint recorded at a limit,
+    with the poses and how far past it stood (a note kept on the screen, see below)."""
     now = time.monotonic()
     warnings: list[str] = []
     try:
@@ -359,6 +366,7 @@ async def capture(
         screen.say(f"pose not captured: none of its joints answers ({names_said}): nothing to capture")
         return
     taken = {}
+    past: list[str] = []
     for name in pose:
         spec = robot.joints[name]
         if beyond_limits(spec, pose[name]):  # (a little past, as at a calibrated end: recorded at it, unsaid)
@@ -367,6 +375,7 @@ async def capture(
                 f"{WARNING} joint {escape(name)} is at {signed_count_angle(pose[name])}, beyond its limits "
                 f"{spec.min:g}..{spec.max:g}: recorded at the limit"
             )
+            past.append(name)
         taken[name] = round(spec.clamp(pose[name]), 2)
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(times.at(now), round(previous + 0.001, 3))
@@ -376,6 +385,25 @@ async def capture(
     keyframes.append(Keyframe(when, taken))
     # Through the screen: on a terminal a line printed beside the live view is written over by its next redraw.
     screen.say("\n".join([f"pose {len(keyframes)} at {taught_time(when)} s", *warnings]))
+    # The pose's words go at the next capture's: a joint recorded at a limit stays said, a line of the view each, so
+    # that the person who taught ten poses knows which were not where the hands put them.
+    for name in past:
+        at_limits.setdefault(name, []).append((len(keyframes), taken[name], abs(pose[name] - taken[name])))
+        screen.note(f"limit {name}", limit_note(name, at_limits[name]))
+
+
+def limit_note(name: str, poses: list[tuple[int, float, float]]) -> str:
+    """``warning: joint elbow recorded at its limit 120 in poses 1, 3 (it stood up to 15.0 past)`` from ``poses``
+    (pose number, the limit, how far past it the joint stood); at both limits, ``in pose 1 at 120, pose 3 at -5``."""
+    limits = {limit for _, limit, _ in poses}
+    if len(limits) > 1:
+        where = "its limits in " + ", ".join(f"pose {k} at {limit:g}" for k, limit, _ in poses)
+    else:
+        numbers = ", ".join(str(k) for k, _, _ in poses)
+        where = f"its limit {poses[0][1]:g} in {'pose' if len(poses) == 1 else 'poses'} {numbers}"
+    far = max(f for _, _, f in poses)
+    up_to = "up to " if len(poses) > 1 else ""
+    return f"{WARNING} joint {escape(name)} recorded at {where} (it stood {up_to}{far:.1f} past)"
 
 
 def taught_time(seconds: float) -> str:
