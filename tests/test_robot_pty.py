@@ -325,8 +325,8 @@ def test_teach_on_a_terminal_shows_its_warning_about_a_pose_beyond_the_limits(po
         "\n".join(screen)
     )
     # (kept on the screen whatever comes after: which poses, and how far past the limit the joint stood)
-    assert "warning: joint b recorded at its limit -90 in poses 1, 2 (it stood up to 10.0 past)" in text, (
-        "\n".join(screen)
+    assert "warning: joint b recorded at its limit -90 in poses 1, 2 (it stood up to 10.0 past)" in text, "\n".join(
+        screen
     )
     assert sum(f"teach: {taught}" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once
 
