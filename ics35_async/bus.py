@@ -347,7 +347,9 @@ class Bus:
             try:
                 await driver.open()
             except PortNotFound as exc:
-                if not self._settings.reconnect or not exc.unplugged:  # (a misnamed port: no adapter to plug in)
+                if (
+                    not self._settings.reconnect or not exc.may_be_plugged_in
+                ):  # (a misnamed port: no adapter to plug in)
                     raise
                 # (one who asked for a lost port to be reopened expects a wait for a missing one too: it is not)
                 raise exc.reworded(f"{error_text(exc)}; {MISSING_AS_IT_OPENS}") from exc

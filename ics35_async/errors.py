@@ -173,7 +173,7 @@ class SerialPortError(IcsError, OSError):
         """The same error in the words ``text`` (a caller adding what it knows): the same class and errno, so code
         that tells a missing port from a busy one still can."""
         again = type(self)(text) if self.errno is None else type(self)(self.errno, text)
-        again.__dict__.update(self.__dict__)  # (what it was marked with: PortNotFound.unplugged)
+        again.__dict__.update(self.__dict__)  # (what it was marked with: PortNotFound.may_be_plugged_in)
         return again
 
 
@@ -182,7 +182,7 @@ class PortNotFound(SerialPortError, FileNotFoundError):
 
     # The name is a device's that may yet be plugged in (not a misnamed port, nor a stopped simulator's pty): what
     # a bus that reconnects adds words for (it does not wait for a port missing as it opens).
-    unplugged: bool = False
+    may_be_plugged_in: bool = False
 
 
 class PortPermissionDenied(SerialPortError, PermissionError):

@@ -24,12 +24,13 @@ Installed = tuple[Literal["editable", "package", "unknown"], Path | None]
 def installed_from() -> Installed:
     """``("editable", the clone)`` for ``pip install -e``, ``("package", None)`` for a wheel or sdist, and
     ``("unknown", None)`` when no installed distribution is found (the code run from a source tree)."""
-    # Each copy on the path: an installation's record first (a build's ics35_async.egg-info in a checkout, first on
-    # the path when the code runs from there, records no installation).
-    found = [d.read_text("direct_url.json") for d in metadata.distributions(name=DISTRIBUTION)]
-    if not found:
+    # Installations only: a build's ics35_async.egg-info in a checkout, first on the path when the code runs from
+    # there, records none (no INSTALLER): taken for one, an editable install was told as a package.
+    installed = [d for d in metadata.distributions(name=DISTRIBUTION) if d.read_text("INSTALLER") is not None]
+    if not installed:
         return "unknown", None
-    recorded = next((r for r in found if r), None)
+    records = [d.read_text("direct_url.json") for d in installed]
+    recorded = next((r for r in records if r), None)
     try:
         direct = json.loads(recorded) if recorded else {}
     except ValueError:

@@ -614,7 +614,7 @@ def test_cli_refuses_to_write_an_image_with_unknown_codes(
 ) -> None:
     sim, url, image = odd_servo
     code, _, err = _Cli(capsys)("--port", url, "eeprom", "set", "1", "speed=50", "--yes")
-    assert code == ExitCode.USAGE and "reference does not define" in err and "nothing was sent" in err
+    assert code == ExitCode.USAGE and "reference does not define" in err and "nothing was written" in err
     assert sim.servo(1).eeprom_writes == 0 and sim.servo(1).eeprom.to_bytes() == image
 
 

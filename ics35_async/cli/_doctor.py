@@ -21,7 +21,8 @@ from ..drivers.fine_timer import TIMER_NAME, fine_deadlines
 from ..errors import IcsError
 from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
-from ..transports.platforms import example_port, misnamed_port_hints
+from ..transports.platforms import misnamed_port_hints
+from ..transports.wire_device import example_port
 from ._common import (
     CliError,
     ExitCode,

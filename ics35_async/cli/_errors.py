@@ -13,8 +13,8 @@ from .. import errors
 from ..diagnose.system import check_holders
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
-from ..transports.platforms import example_port, misnamed_port_hints, permission_hint, port_group, port_names_hint
-from ..transports.wire_device import is_url, url_scheme
+from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
+from ..transports.wire_device import example_port, is_url, url_scheme
 from ._console import err, no_servo_among, say
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
@@ -92,7 +92,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
             return CliError(
                 ExitCode.PORT, text, f"ports are serial devices ({example_port()}), pyserial URLs or sim://"
             )
-        return CliError(ExitCode.USAGE, f"{text} (nothing was sent)")
+        return CliError(ExitCode.USAGE, f"{text} (nothing was written)")  # (some come after reads: not "sent")
     if isinstance(exc, errors.ReplyError) and echo_setting_wrong(exc, settings.echo):
         if settings.echo:
             return CliError(

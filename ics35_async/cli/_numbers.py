@@ -22,11 +22,15 @@ class Number(click.FloatRange):
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             number: float = value
         else:
+            text = str(value).strip()
             try:
-                number = int(str(value).strip()) if self.WHOLE else float(str(value).strip())
+                # (Python also reads "1_0" as 10 and other scripts' digits: a mistyped "1-0" would be taken)
+                if not text.isascii() or "_" in text:
+                    raise ValueError(text)
+                number = int(text) if self.WHOLE else float(text)
             except ValueError:
                 number = math.nan
-            if math.isnan(number):  # (float("nan") compares as within every range)
+            if not math.isfinite(number):  # ("nan" compares as within every range; "inf" is no seconds or count)
                 self.fail(f"{value!r} is not a {'whole ' if self.WHOLE else ''}number", param, ctx)
         low, high = self.min, self.max
         below = low is not None and (number <= low if self.min_open else number < low)

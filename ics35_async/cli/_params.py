@@ -138,7 +138,7 @@ def _is_number(word: str) -> bool:
 
 
 SERVO_ID = ServoIdType()
-ID_LIST = ListType("IDS", parse_id_list, " (write e.g. 3, 1-12, 0,4,7 or all)")  # (every refusal names 0..31)
+ID_LIST = ListType("IDS", parse_id_list, " (write e.g. 3, 1-12, 0,4,7 or all)")
 BAUD_LIST = ListType("BAUDS", parse_baud_list)
 
 

@@ -150,11 +150,13 @@ def note_ports(settings: Settings, robot_file: str) -> None:
     """Name the line options given that the robot file decides (see :func:`robot_options` for those that apply):
     each line's port, baud rate, echo, retries and a DIY interface's direction control are the file's.  Left unsaid,
     a --direction meant for a DIY interface would be dropped without a word."""
+    # (a value the environment set is named as its variable: --baud was not typed)
+    env = {v.split("=", 1)[0] for v in settings.from_environment}
     unused = [
         option
         for option, given in (
-            ("--port", not settings.port_defaulted),
-            ("--baud", "baud" in settings.given),  # (given, whatever its value: `--baud 115200` too)
+            ("ICS35_PORT" if "ICS35_PORT" in env else "--port", not settings.port_defaulted),
+            ("ICS35_BAUD" if "ICS35_BAUD" in env else "--baud", "baud" in settings.given),  # (whatever its value)
             ("--retries", "retries" in settings.given),
             ("--no-echo", not settings.echo),
             ("--direction", "direction" in settings.given),

@@ -389,7 +389,8 @@ async def capture(
     # that the person who taught ten poses knows which were not where the hands put them.
     for name in past:
         at_limits.setdefault(name, []).append((len(keyframes), taken[name], abs(pose[name] - taken[name])))
-        screen.note(f"limit {name}", limit_note(name, at_limits[name]))
+        if screen.tty:  # (into a log, each pose's warning stays where it was written: not said again)
+            screen.note(f"limit {name}", limit_note(name, at_limits[name]))
 
 
 def limit_note(name: str, poses: list[tuple[int, float, float]]) -> str:

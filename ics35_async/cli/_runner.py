@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
-from ..transports.platforms import example_port
+from ..transports.wire_device import example_port
 from ._console import say_labelled
 from ._errors import NobodyAnswered, no_reply_error, nobody_at_this_rate, translate
 from ._loop import run_loop

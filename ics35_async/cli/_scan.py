@@ -208,7 +208,8 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     )
     # (a shared ID in the summary too: on stderr alone, a glance at the table missed two servos answering as one)
     garbled = "".join(
-        f"; ID {i} at {baud} baud answered garbled (two servos sharing it?)" for baud, i, _ in report.garbled
+        f"; ID {i} at {baud} baud answered garbled (two servos sharing it?)"
+        for baud, i, _ in (report.garbled if report.echo_evidence is None else ())  # (else the echo explains it)
     )
     say(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}{garbled}", to=out)
     if len(by_baud) > 1:

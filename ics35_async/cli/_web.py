@@ -10,7 +10,7 @@ from rich.markup import escape
 from ..errors import InvalidArgument
 from ..extras import extra_hint
 from ..terminal import clear_after_ctrl_c
-from ..transports.platforms import example_port
+from ..transports.wire_device import example_port
 from ._common import CliError, ExitCode, settings_of
 from ._console import say, say_labelled
 from ._loop import loop_factory, quiet_executor_shutdown

@@ -83,7 +83,8 @@ class UnsettledReadings(IcsError):
 class JointTelemetry:
     """The newest temperature (approximate Celsius) and current (0..63) read from a joint's servo; ``reads`` and
     ``errors`` count the readings taken and those that failed (no reply, a garbled one), ``failed_in_row`` those
-    failed since the newest one taken (:attr:`Robot.telemetry <ics35_async.robot.Robot.telemetry>` shows none from
+    failed since the newest one taken or its servo went offline (see :meth:`SafetyWatch.forget`;
+    :attr:`Robot.telemetry <ics35_async.robot.Robot.telemetry>` shows none from
     :data:`~ics35_async.frames.STALE_AFTER_FAILED_READS` on)."""
 
     temperature_c: float | None = None
@@ -125,9 +126,10 @@ class SafetyWatch:
 
     def forget(self, joints: Iterable[str]) -> None:
         """Drop the readings of ``joints``, whose servo went offline or whose line lost its port: it may come back
-        restarted, cooler or hotter, and what was read before is not its own now (its counts stay).  The reads that
-        failed as it went end with it: back, a stretch of failed reads to say is counted from then (they were said
-        "did not read 20 times in a row (its servo still answers its position commands)" as it answered again)."""
+        restarted, cooler or hotter, and what was read before is not its own now (``reads`` and ``errors`` stay).
+        The reads that failed as it went end with it (``failed_in_row`` from 0): back, a stretch of failed reads to
+        say is counted from then (they were said "did not read 20 times in a row (its servo still answers its
+        position commands)" as it answered again)."""
         for name in joints:
             seen = self.telemetry.get(name)
             if seen is not None:

@@ -92,15 +92,6 @@ def _for_platform(texts: dict[str, str], platform: str | None) -> str:
     return texts.get(platform, texts[""])
 
 
-_EXAMPLE_PORT = {"win32": "COM3", "darwin": "/dev/cu.usbserial-...", "": "/dev/ttyUSB0"}  # (as --help writes them)
-
-
-def example_port(platform: str | None = None) -> str:
-    """A serial port's name as ``platform`` (default: this one) writes it, for a hint's example: a Linux user
-    offered ``COM3`` is then told that COM names are Windows' own."""
-    return _for_platform(_EXAMPLE_PORT, platform)
-
-
 def port_names_hint(platform: str | None = None) -> str:
     """Where a person finds the name of their serial port on ``platform`` (default: this one)."""
     return _for_platform(_PORT_NAMES, platform)

@@ -121,9 +121,9 @@ def _check_not_left_by_a_killed_simulator(port: str) -> None:
     )
 
 
-def _unplugged(exc: PortNotFound) -> PortNotFound:
-    """``exc``, marked as a port whose device may yet be plugged in (see PortNotFound.unplugged)."""
-    exc.unplugged = True
+def _may_be_plugged_in(exc: PortNotFound) -> PortNotFound:
+    """``exc``, marked as a port whose device may yet be plugged in (see PortNotFound.may_be_plugged_in)."""
+    exc.may_be_plugged_in = True
     return exc
 
 
@@ -139,7 +139,7 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
                 f"that stopped? start it again: ics35 sim --link {port})",
             )
         if dangling is not None:  # (a udev link whose adapter is gone)
-            return _unplugged(
+            return _may_be_plugged_in(
                 PortNotFound(
                     errno.ENOENT,
                     f"no serial port at {port!r}: it is a link to {dangling}, which is not there (an adapter "
@@ -149,7 +149,7 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
         misnamed = misnamed_port_hints(port)
         if misnamed:  # (sim:/?ids=1-3, ttyUSB0: the cable is not what to check)
             return PortNotFound(errno.ENOENT, f"no serial port at {port!r}: {'; '.join(misnamed)}")
-        return _unplugged(
+        return _may_be_plugged_in(
             PortNotFound(
                 errno.ENOENT,
                 f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",

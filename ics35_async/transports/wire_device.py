@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import os
 import re
+import sys
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 from urllib.parse import urlsplit
@@ -122,11 +123,21 @@ def _loaded(target: str) -> Callable[[str], object]:
     return cast(Callable[[str], object], getattr(importlib.import_module(module), name))
 
 
+# A serial port's name as each system writes it (by sys.platform; "": Linux and the BSDs), as --help writes them.
+_EXAMPLE_PORTS = {"win32": "COM3", "darwin": "/dev/cu.usbserial-...", "": "/dev/ttyUSB0"}
+
+
+def example_port(platform: str | None = None) -> str:
+    """A serial port's name as ``platform`` (default: this one) writes it, for a hint's example: a Linux user
+    offered ``COM3`` is then told that COM names are Windows' own."""
+    return _EXAMPLE_PORTS.get(platform or sys.platform, _EXAMPLE_PORTS[""])
+
+
 # What a program that passed no port (an unset variable, an empty argument) is told to pass instead: each system's
 # name labelled (the library's words may be read on another machine; a bare "or COM3" misled a Linux user).
 _PORT_ADVICE = (
-    "pass the adapter's serial port (`ics35 ports` lists them), e.g. /dev/ttyUSB0 on Linux, /dev/cu.usbserial-... on"
-    " macOS, COM3 on Windows; or 'sim://' for the built-in simulator"
+    f"pass the adapter's serial port (`ics35 ports` lists them), e.g. {example_port('linux')} on Linux, "
+    f"{example_port('darwin')} on macOS, {example_port('win32')} on Windows; or 'sim://' for the built-in simulator"
 )
 
 

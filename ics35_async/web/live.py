@@ -188,7 +188,8 @@ class LiveView:
             "current": {str(k): v for k, v in self.current.items()},
             "temperature": {str(k): v for k, v in self.temperature.items()},
             "offline": sorted(frame.offline),
-            "watched": [i for i in self.ids if self.stream.target(i) == WATCH],
+            # (an offline ID is watched for its answer, not known to answer ICS 3.6's read: said as offline only)
+            "watched": [i for i in self.ids if self.stream.target(i) == WATCH and i not in frame.offline],
             # Sent nothing since their port came back or they answered again, and why: their servos may
             # have restarted, free and elsewhere, so the page says so rather than plot a line gone flat.
             "held": {str(k): why for k, why in self.stream.held.items()},

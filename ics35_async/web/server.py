@@ -414,7 +414,8 @@ def serve(
     no_browser_opened: Callable[[], None] | None = None,
     loop: Literal["auto", "asyncio", "uvloop"] = "auto",
 ) -> int:
-    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong
+    (and, once bound beyond loopback, that any machine that reaches it and knows the token can move the servos),
     ``note`` what the server does as it stops (a stop that waits for requests still being answered, what it leaves
     the robot's joints in) and what befalls the robot meanwhile (the Robot page opened it, a lost line stopped it),
     ``no_browser_opened`` that ``open_browser`` was asked for and no browser could be opened (a headless machine,

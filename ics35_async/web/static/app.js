@@ -1014,9 +1014,7 @@ function onLive(frame) {
   $("#live-rate").textContent = lost ? "-" : frame.rate_hz;
   $("#live-updates").textContent = state.updates.length;
   $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
-  // (an offline ID is watched for its answer, not known as ICS 3.6: said as offline only)
-  const watched = frame.watched.filter((id) => !frame.offline.includes(id));
-  $("#live-watched").textContent = watched.length ? watched.join(",") : "none";
+  $("#live-watched").textContent = frame.watched.length ? frame.watched.join(",") : "none";
   // Held by the stream since their port came back ("resumed") or they answered again ("rejoined"): sent
   // nothing, their servos may have restarted, free and elsewhere; a flat line alone would not say so.
   const held = Object.entries(frame.held || {});
