@@ -716,6 +716,20 @@ def test_a_joint_whose_telemetry_reads_keep_failing_has_no_temperature_or_curren
     assert shown == [None, None], shown
 
 
+def blind_said(caplog: pytest.LogCaptureFixture) -> list[str]:
+    """The safety watch's words that it cannot hold a joint to its limits (its telemetry does not read)."""
+    return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
+
+
+def run_with_warnings(rig: Rig, main: Callable[[], Awaitable[None]], caplog: pytest.LogCaptureFixture) -> None:
+    """``main`` run with the library's warnings captured, the rig closed after it however it ended."""
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            anyio.run(main)
+    finally:
+        rig.close()
+
+
 def test_a_watched_joint_whose_telemetry_cannot_be_read_is_said_once_an_episode(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -723,9 +737,6 @@ def test_a_watched_joint_whose_telemetry_cannot_be_read_is_said_once_an_episode(
     # commands but no temperature or current read, and the watch went on without a word, as if guarding it.
     rig = make_rig({"max_temperature_c": 70, "max_current": 40})
     blind: list[int] = []
-
-    def said() -> list[str]:
-        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
 
     async def main() -> None:
         with anyio.fail_after(GUARD):
@@ -735,20 +746,16 @@ def test_a_watched_joint_whose_telemetry_cannot_be_read_is_said_once_an_episode(
                     rig.lower.servo(2).ignores = frozenset({"read_temperature", "read_current"})
                     until = robot.telemetry["knee"].errors + 4
                     await frames_until(robot, lambda until=until: robot.telemetry["knee"].errors >= until)
-                    blind.append(len(said()))
+                    blind.append(len(blind_said(caplog)))
                     rig.lower.servo(2).ignores = frozenset()
                     await frames_until(robot, lambda: robot.telemetry["knee"].temperature_c is not None)
 
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            anyio.run(main)
-    finally:
-        rig.close()
-    assert blind == [1, 2], (blind, said())  # once an episode, not once a failed read
-    for message in said():
+    run_with_warnings(rig, main, caplog)
+    assert blind == [1, 2], (blind, blind_said(caplog))  # once an episode, not once a failed read
+    for message in blind_said(caplog):
         assert "joint knee (line lower, ID 2)" in message, message
         assert "max_temperature_c 70 and max_current 40" in message and "until they read again" in message, message
-    assert not [r for r in caplog.records if "hip" in r.getMessage() and "cannot hold" in r.getMessage()]
+    assert not [message for message in blind_said(caplog) if "hip" in message]
 
 
 def test_a_watched_joint_whose_servo_stopped_answering_altogether_is_not_said_blind(
@@ -759,9 +766,6 @@ def test_a_watched_joint_whose_servo_stopped_answering_altogether_is_not_said_bl
     # cause (the servo was gone: the offline rule says so).  Said only while its position still answers.
     rig = make_rig({"max_temperature_c": 70, "max_current": 40, "telemetry_per_cycle": 2})
 
-    def said() -> list[str]:
-        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
-
     async def main() -> None:
         with anyio.fail_after(GUARD):
             # (offline only after 50 failed cycles: the reads fail twice long before)
@@ -771,12 +775,8 @@ def test_a_watched_joint_whose_servo_stopped_answering_altogether_is_not_said_bl
                 until = robot.telemetry["knee"].errors + 4
                 await frames_until(robot, lambda: robot.telemetry["knee"].errors >= until)
 
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            anyio.run(main)
-    finally:
-        rig.close()
-    assert not said(), said()
+    run_with_warnings(rig, main, caplog)
+    assert not blind_said(caplog), blind_said(caplog)
 
 
 def test_a_watched_joint_whose_servo_is_plugged_back_in_is_not_said_blind(caplog: pytest.LogCaptureFixture) -> None:
@@ -784,9 +784,6 @@ def test_a_watched_joint_whose_servo_is_plugged_back_in_is_not_said_blind(caplog
     # "its temperature and current did not read 3 times in a row (its servo still answers its position commands)",
     # counting the reads that failed as it went, while the views showed it reading well.
     rig = make_rig({"max_temperature_c": 70, "max_current": 40, "telemetry_per_cycle": 2})
-
-    def said() -> list[str]:
-        return [r.getMessage() for r in caplog.records if "cannot hold" in r.getMessage()]
 
     async def main() -> None:
         with anyio.fail_after(GUARD):
@@ -800,12 +797,8 @@ def test_a_watched_joint_whose_servo_is_plugged_back_in_is_not_said_blind(caplog
                 reads = robot.telemetry["knee"].reads
                 await frames_until(robot, lambda: robot.telemetry["knee"].reads >= reads + 3)  # (read well again)
 
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            anyio.run(main)
-    finally:
-        rig.close()
-    assert not said(), said()
+    run_with_warnings(rig, main, caplog)
+    assert not blind_said(caplog), blind_said(caplog)
 
 
 def test_telemetry_that_cannot_be_read_is_not_said_where_no_limit_needs_it(caplog: pytest.LogCaptureFixture) -> None:
@@ -819,9 +812,5 @@ def test_telemetry_that_cannot_be_read_is_not_said_where_no_limit_needs_it(caplo
                 errors = robot.telemetry["knee"].errors
                 await frames_until(robot, lambda: robot.telemetry["knee"].errors >= errors + 3)
 
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            anyio.run(main)
-    finally:
-        rig.close()
-    assert not [r for r in caplog.records if "cannot hold" in r.getMessage()]
+    run_with_warnings(rig, main, caplog)
+    assert not blind_said(caplog)

@@ -172,8 +172,10 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
                 f"rate is unconfirmed: it answered at {heard} baud; read it again with: {escape(again)}  "
                 f"(last error: {escape(s.eeprom_error.reason)})",
             )
-    if report.garbled and report.echo_evidence is None:
-        where = ", ".join(f"ID {i} at {baud}" for baud, i, _ in report.garbled)
+    # IDs that answered garbled where no wrong echo setting explains it (said twice: here and in the summary)
+    garbled_ids = [(i, baud) for baud, i, _ in report.garbled] if report.echo_evidence is None else []
+    if garbled_ids:
+        where = ", ".join(f"ID {i} at {baud}" for i, baud in garbled_ids)
         say_labelled(
             "[yellow]warning:[/yellow]",
             f"garbled replies from {where}: two servos sharing an ID, a servo at another baud rate, or noise",
@@ -207,10 +209,7 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else [])
     )
     # (a shared ID in the summary too: on stderr alone, a glance at the table missed two servos answering as one)
-    garbled = "".join(
-        f"; ID {i} at {baud} baud answered garbled (two servos sharing it?)"
-        for baud, i, _ in (report.garbled if report.echo_evidence is None else ())  # (else the echo explains it)
-    )
+    garbled = "".join(f"; ID {i} at {baud} baud answered garbled (two servos sharing it?)" for i, baud in garbled_ids)
     say(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}{garbled}", to=out)
     if len(by_baud) > 1:
         most = max(by_baud, key=lambda b: by_baud[b])

@@ -317,7 +317,7 @@ async def many_apply(request: Request, session: LineSession) -> Any:
     return {"results": await session.apply_to_many(ids, data)}
 
 
-async def ids(request: Request, session: LineSession) -> Any:
+async def ids_in_text(request: Request, session: LineSession) -> Any:
     """The IDs a box's text names, by the command line's rule (``units.parse_id_list``): the pages keep none of
     their own."""
     return {"ids": parse_id_list(request.query_params.get("text", ""))}
@@ -567,7 +567,7 @@ ROUTES = [
     Route("/api/many/backup", endpoint(many_backup), methods=["POST"]),
     Route("/api/many/last", endpoint(many_last)),
     Route("/api/many/fields", endpoint(many_fields)),
-    Route("/api/ids", endpoint(ids)),
+    Route("/api/ids", endpoint(ids_in_text)),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),
